@@ -1,0 +1,317 @@
+//! Sensor messages: the only input of the estimator, SLAM and mapper.
+//!
+//! The types mirror their ROS 2 counterparts (`sensor_msgs/Imu`, `sensor_msgs/NavSatFix`,
+//! `geometry_msgs/TwistWithCovarianceStamped`, `nav_msgs/Odometry`) field for field, in SI
+//! units, so that a field recording maps onto them without loss. Each message carries the
+//! frame it was measured in; extrinsics come from [`crate::StaticTransforms`].
+
+use crate::geodesy::Geodetic;
+use crate::{FrameId, Nanos};
+use nalgebra::{Isometry3, Matrix3, Matrix6, UnitQuaternion, Vector3};
+use thiserror::Error;
+
+/// An IMU sample (`sensor_msgs/Imu`), in the IMU's own frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImuMsg {
+    /// Sample time.
+    pub stamp: Nanos,
+    /// The IMU frame (a URDF link).
+    pub frame_id: FrameId,
+    /// AHRS orientation `world_from_imu` (ENU world), when the device provides one.
+    pub orientation: Option<UnitQuaternion<f64>>,
+    /// Covariance (rad²) of the orientation error as a small rotation about the **world**
+    /// x (east), y (north), z (up) axes: `world_from_imu_true = Exp(e) * world_from_imu`.
+    pub orientation_covariance: Matrix3<f64>,
+    /// Angular rate of the IMU frame relative to the world, in the IMU frame (rad/s).
+    pub angular_velocity: Vector3<f64>,
+    /// Covariance of `angular_velocity` ((rad/s)²).
+    pub angular_velocity_covariance: Matrix3<f64>,
+    /// Specific force (acceleration minus gravity) in the IMU frame (m/s²);
+    /// a level IMU at rest reads about +9.8 on z.
+    pub linear_acceleration: Vector3<f64>,
+    /// Covariance of `linear_acceleration` ((m/s²)²).
+    pub linear_acceleration_covariance: Matrix3<f64>,
+}
+
+/// GNSS solution type, from best to none.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum FixStatus {
+    /// No position (under canopy, receiver lost lock). Position fields are NaN.
+    NoFix,
+    /// Stand-alone (single point) solution, metre level.
+    Single,
+    /// RTK with float ambiguities, decimetre level.
+    RtkFloat,
+    /// RTK with fixed ambiguities, centimetre level.
+    RtkFixed,
+}
+
+impl FixStatus {
+    /// `sensor_msgs/NavSatStatus.status`: -1 no fix, 0 fix, 2 ground-based augmentation
+    /// (what RTK receivers' ROS drivers publish for float and fixed solutions).
+    pub fn ros_status(self) -> i8 {
+        match self {
+            FixStatus::NoFix => -1,
+            FixStatus::Single => 0,
+            FixStatus::RtkFloat | FixStatus::RtkFixed => 2,
+        }
+    }
+    /// Short lowercase name (`no_fix`, `single`, `rtk_float`, `rtk_fixed`).
+    pub fn name(self) -> &'static str {
+        match self {
+            FixStatus::NoFix => "no_fix",
+            FixStatus::Single => "single",
+            FixStatus::RtkFloat => "rtk_float",
+            FixStatus::RtkFixed => "rtk_fixed",
+        }
+    }
+}
+
+/// A GNSS position fix (`sensor_msgs/NavSatFix`) of the antenna phase centre.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GnssFixMsg {
+    /// Measurement epoch.
+    pub stamp: Nanos,
+    /// The antenna frame (a URDF link).
+    pub frame_id: FrameId,
+    /// Solution type.
+    pub status: FixStatus,
+    /// WGS84 position of the antenna (NaN when `status` is `NoFix`).
+    pub position: Geodetic,
+    /// Position covariance in the local ENU frame at the antenna (m²), as ROS defines it.
+    pub position_covariance: Matrix3<f64>,
+}
+
+/// A GNSS velocity (`geometry_msgs/TwistWithCovarianceStamped` as u-blox drivers publish).
+#[derive(Clone, Debug, PartialEq)]
+pub struct GnssVelocityMsg {
+    /// Measurement epoch.
+    pub stamp: Nanos,
+    /// The antenna frame.
+    pub frame_id: FrameId,
+    /// Antenna velocity in ENU (m/s).
+    pub velocity_in_world: Vector3<f64>,
+    /// Covariance of the velocity ((m/s)²).
+    pub covariance: Matrix3<f64>,
+}
+
+/// Odometry (`nav_msgs/Odometry`): the pose of `child_frame_id` in `frame_id` and its twist.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OdometryMsg {
+    /// Sample time.
+    pub stamp: Nanos,
+    /// The odometry's own fixed frame (its start frame, e.g. `tracking_odom`).
+    pub frame_id: FrameId,
+    /// The moving frame (e.g. `tracking_camera` or `base_link`).
+    pub child_frame_id: FrameId,
+    /// `odom_from_child`.
+    pub pose: Isometry3<f64>,
+    /// Pose covariance: translation x, y, z then rotation about x, y, z (ROS order).
+    pub pose_covariance: Matrix6<f64>,
+    /// Linear velocity of the child frame, in the child frame (m/s).
+    pub linear_velocity: Vector3<f64>,
+    /// Angular velocity of the child frame, in the child frame (rad/s).
+    pub angular_velocity: Vector3<f64>,
+    /// Twist covariance (linear then angular).
+    pub twist_covariance: Matrix6<f64>,
+}
+
+/// Any message of the stream.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Message {
+    /// IMU sample with AHRS orientation.
+    Imu(ImuMsg),
+    /// GNSS position fix.
+    GnssFix(GnssFixMsg),
+    /// GNSS velocity.
+    GnssVelocity(GnssVelocityMsg),
+    /// Tracking-camera (visual-inertial) odometry.
+    TrackingOdom(OdometryMsg),
+    /// Wheel or track odometry.
+    WheelOdom(OdometryMsg),
+}
+
+/// A message as it reached the computer: `arrival` is at or after the message's stamp
+/// (sensor latency), and streams are delivered in arrival order, so stamps may go
+/// backwards across sensors.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TimedMessage {
+    /// Reception time.
+    pub arrival: Nanos,
+    /// The message.
+    pub msg: Message,
+}
+
+/// A message field that is not usable (NaN, infinite, not a covariance).
+#[derive(Clone, Debug, Error, PartialEq)]
+#[error("{topic} at {stamp}: field `{field}` {problem}")]
+pub struct InvalidMessage {
+    /// The message's topic.
+    pub topic: &'static str,
+    /// The message's stamp.
+    pub stamp: Nanos,
+    /// The field.
+    pub field: &'static str,
+    /// What is wrong with it.
+    pub problem: &'static str,
+}
+
+impl Message {
+    /// The measurement time.
+    pub fn stamp(&self) -> Nanos {
+        match self {
+            Message::Imu(m) => m.stamp,
+            Message::GnssFix(m) => m.stamp,
+            Message::GnssVelocity(m) => m.stamp,
+            Message::TrackingOdom(m) | Message::WheelOdom(m) => m.stamp,
+        }
+    }
+
+    /// The ROS 2 topic vinebench publishes this message on.
+    pub fn topic(&self) -> &'static str {
+        match self {
+            Message::Imu(_) => "/imu/data",
+            Message::GnssFix(_) => "/gnss/fix",
+            Message::GnssVelocity(_) => "/gnss/fix_velocity",
+            Message::TrackingOdom(_) => "/tracking_camera/odom/sample",
+            Message::WheelOdom(_) => "/wheel/odom",
+        }
+    }
+
+    /// Checks that every field an algorithm would use is finite and every covariance is
+    /// symmetric with a non-negative diagonal. A `NoFix` GNSS fix may carry NaN position.
+    pub fn validate(&self) -> Result<(), InvalidMessage> {
+        let bad = |field, problem| InvalidMessage {
+            topic: self.topic(),
+            stamp: self.stamp(),
+            field,
+            problem,
+        };
+        const NOT_FINITE: &str = "is NaN or infinite";
+        const NOT_COV: &str = "is not a covariance (asymmetric, negative or NaN diagonal)";
+        match self {
+            Message::Imu(m) => {
+                if let Some(q) = &m.orientation
+                    && !q.coords.iter().all(|c| c.is_finite())
+                {
+                    return Err(bad("orientation", NOT_FINITE));
+                }
+                if !finite3(&m.angular_velocity) {
+                    return Err(bad("angular_velocity", NOT_FINITE));
+                }
+                if !finite3(&m.linear_acceleration) {
+                    return Err(bad("linear_acceleration", NOT_FINITE));
+                }
+                if m.orientation.is_some() && !is_cov3(&m.orientation_covariance) {
+                    return Err(bad("orientation_covariance", NOT_COV));
+                }
+                if !is_cov3(&m.angular_velocity_covariance) {
+                    return Err(bad("angular_velocity_covariance", NOT_COV));
+                }
+                if !is_cov3(&m.linear_acceleration_covariance) {
+                    return Err(bad("linear_acceleration_covariance", NOT_COV));
+                }
+            }
+            Message::GnssFix(m) => {
+                if m.status != FixStatus::NoFix {
+                    if !m.position.is_valid() {
+                        return Err(bad("position", "is NaN, infinite or out of range"));
+                    }
+                    if !is_cov3(&m.position_covariance) {
+                        return Err(bad("position_covariance", NOT_COV));
+                    }
+                }
+            }
+            Message::GnssVelocity(m) => {
+                if !finite3(&m.velocity_in_world) {
+                    return Err(bad("velocity_in_world", NOT_FINITE));
+                }
+                if !is_cov3(&m.covariance) {
+                    return Err(bad("covariance", NOT_COV));
+                }
+            }
+            Message::TrackingOdom(m) | Message::WheelOdom(m) => {
+                let p = &m.pose;
+                if !finite3(&p.translation.vector) || !p.rotation.coords.iter().all(|c| c.is_finite())
+                {
+                    return Err(bad("pose", NOT_FINITE));
+                }
+                if !finite3(&m.linear_velocity) {
+                    return Err(bad("linear_velocity", NOT_FINITE));
+                }
+                if !finite3(&m.angular_velocity) {
+                    return Err(bad("angular_velocity", NOT_FINITE));
+                }
+                if !is_cov6(&m.pose_covariance) {
+                    return Err(bad("pose_covariance", NOT_COV));
+                }
+                if !is_cov6(&m.twist_covariance) {
+                    return Err(bad("twist_covariance", NOT_COV));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+fn finite3(v: &Vector3<f64>) -> bool {
+    v.iter().all(|c| c.is_finite())
+}
+
+fn is_cov3(m: &Matrix3<f64>) -> bool {
+    m.iter().all(|c| c.is_finite())
+        && (0..3).all(|i| m[(i, i)] >= 0.0)
+        && (m - m.transpose()).amax() <= 1e-9 * m.amax().max(1e-300)
+}
+
+fn is_cov6(m: &Matrix6<f64>) -> bool {
+    m.iter().all(|c| c.is_finite())
+        && (0..6).all(|i| m[(i, i)] >= 0.0)
+        && (m - m.transpose()).amax() <= 1e-9 * m.amax().max(1e-300)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn imu() -> ImuMsg {
+        ImuMsg {
+            stamp: Nanos(5),
+            frame_id: FrameId::new("imu_link"),
+            orientation: Some(UnitQuaternion::identity()),
+            orientation_covariance: Matrix3::identity() * 1e-4,
+            angular_velocity: Vector3::zeros(),
+            angular_velocity_covariance: Matrix3::identity() * 1e-6,
+            linear_acceleration: Vector3::new(0.0, 0.0, 9.8),
+            linear_acceleration_covariance: Matrix3::identity() * 1e-4,
+        }
+    }
+
+    #[test]
+    fn nan_fields_are_named() {
+        assert_eq!(Message::Imu(imu()).validate(), Ok(()));
+        let mut m = imu();
+        m.linear_acceleration.y = f64::NAN;
+        let err = Message::Imu(m).validate().unwrap_err();
+        assert_eq!(err.field, "linear_acceleration");
+        assert!(err.to_string().contains("/imu/data"));
+        let mut m = imu();
+        m.orientation_covariance[(0, 1)] = 1.0;
+        assert_eq!(Message::Imu(m).validate().unwrap_err().field, "orientation_covariance");
+    }
+
+    #[test]
+    fn no_fix_may_carry_nan_position() {
+        let nan = Geodetic { lat_deg: f64::NAN, lon_deg: f64::NAN, alt_m: f64::NAN };
+        let mut fix = GnssFixMsg {
+            stamp: Nanos(0),
+            frame_id: FrameId::new("gnss_antenna"),
+            status: FixStatus::NoFix,
+            position: nan,
+            position_covariance: Matrix3::from_element(f64::NAN),
+        };
+        assert!(Message::GnssFix(fix.clone()).validate().is_ok());
+        fix.status = FixStatus::RtkFixed;
+        assert_eq!(Message::GnssFix(fix).validate().unwrap_err().field, "position");
+    }
+}

@@ -1,0 +1,490 @@
+//! Parameter types of the simulator, one per table of `scenarios/defaults.toml`.
+//!
+//! Field meanings and default values are documented in that file (the one place where
+//! defaults live); these types only give them shape. Every type rejects unknown keys.
+//! `Default` reads the type's table from the embedded defaults.
+
+use serde::{Deserialize, Serialize};
+use vinebench_msgs::defaults;
+
+macro_rules! default_from_section {
+    ($ty:ty, $path:literal) => {
+        impl Default for $ty {
+            #[doc = concat!("The values of `[", $path, "]` in `scenarios/defaults.toml`.")]
+            fn default() -> Self {
+                defaults::section($path)
+                    .expect("the embedded scenarios/defaults.toml is checked by tests")
+            }
+        }
+    };
+}
+
+/// `[world]`: the procedural vineyard.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorldParams {
+    /// `[world.rows]`.
+    pub rows: RowsParams,
+    /// `[world.posts]`.
+    pub posts: PostsParams,
+    /// `[world.plants]`.
+    pub plants: PlantsParams,
+    /// `[world.terrain]`.
+    pub terrain: TerrainParams,
+    /// `[world.headlands]`.
+    pub headlands: HeadlandsParams,
+}
+default_from_section!(WorldParams, "world");
+
+/// `[world.rows]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RowsParams {
+    /// Number of rows.
+    pub count: u32,
+    /// Row length, m.
+    pub length_m: f64,
+    /// Row spacing, m.
+    pub spacing_m: f64,
+    /// Row direction as ENU yaw, degrees.
+    pub yaw_deg: f64,
+    /// Signed centre-line curvature, 1/m.
+    pub curvature_per_m: f64,
+}
+
+/// `[world.posts]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PostsParams {
+    /// Spacing along the row, m.
+    pub spacing_m: f64,
+    /// Height, m.
+    pub height_m: f64,
+    /// Diameter, m.
+    pub diameter_m: f64,
+    /// Wire heights above ground, m.
+    pub wire_heights_m: Vec<f64>,
+}
+
+/// `[world.plants]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlantsParams {
+    /// Planting distance, m.
+    pub spacing_m: f64,
+    /// Probability of a missing vine.
+    pub missing_probability: f64,
+    /// Trunk position noise (1σ), m.
+    pub position_sigma_m: f64,
+    /// Trunk height, m.
+    pub trunk_height_m: f64,
+    /// Trunk height noise (1σ), m.
+    pub trunk_height_sigma_m: f64,
+    /// Trunk diameter, m.
+    pub trunk_diameter_m: f64,
+    /// Trunk diameter noise (1σ), m.
+    pub trunk_diameter_sigma_m: f64,
+    /// Canopy height above the cordon, m.
+    pub canopy_height_m: f64,
+    /// Canopy width, m.
+    pub canopy_width_m: f64,
+    /// Relative canopy size noise (1σ).
+    pub canopy_size_sigma_rel: f64,
+}
+
+/// `[world.terrain]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TerrainParams {
+    /// Grid resolution, m.
+    pub cell_m: f64,
+    /// Extent beyond the field, m.
+    pub margin_m: f64,
+    /// Slope along the rows, degrees.
+    pub slope_along_deg: f64,
+    /// Slope across the rows, degrees.
+    pub slope_across_deg: f64,
+    /// Undulation amplitude, m.
+    pub undulation_m: f64,
+    /// Undulation wavelength, m.
+    pub undulation_wavelength_m: f64,
+    /// Roughness (1σ), m.
+    pub roughness_m: f64,
+    /// Roughness correlation length, m.
+    pub roughness_wavelength_m: f64,
+}
+
+/// `[world.headlands]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeadlandsParams {
+    /// Headland width beyond each row end, m.
+    pub width_m: f64,
+}
+
+/// `[robot]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobotParams {
+    /// Built-in model name.
+    pub model: String,
+    /// URDF path overriding `model` when not empty.
+    pub urdf: String,
+}
+default_from_section!(RobotParams, "robot");
+
+/// Motion model choice.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MotionModelKind {
+    /// Terrain-following kinematic skid-steer.
+    Kinematic,
+}
+
+/// `[motion]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotionParams {
+    /// Which model.
+    pub model: MotionModelKind,
+    /// Integration rate, Hz.
+    pub step_hz: f64,
+    /// Cruise speed, m/s.
+    pub cruise_speed_mps: f64,
+    /// Yaw-rate limit, rad/s.
+    pub max_yaw_rate_radps: f64,
+    /// Longitudinal acceleration limit, m/s².
+    pub max_accel_mps2: f64,
+    /// Lateral acceleration limit, m/s².
+    pub max_lateral_accel_mps2: f64,
+    /// Drive response time constant, s.
+    pub response_time_s: f64,
+    /// Skid-steer ICR expansion factor.
+    pub icr_expansion: f64,
+    /// Longitudinal track slip fraction at full speed.
+    pub track_slip: f64,
+    /// Pure-pursuit look-ahead, m.
+    pub lookahead_m: f64,
+    /// Controller rate, Hz.
+    pub controller_hz: f64,
+    /// Standstill before the route, s.
+    pub still_before_s: f64,
+    /// Standstill after the route, s.
+    pub still_after_s: f64,
+}
+default_from_section!(MotionParams, "motion");
+
+/// Route kind.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RouteKind {
+    /// Closed loop around one row.
+    RowLoop,
+    /// Up and down every lane over a range of rows.
+    Serpentine,
+    /// A polyline in world coordinates.
+    Waypoints,
+}
+
+/// Loop direction around a row.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LoopDirection {
+    /// Up the right side, back on the left.
+    Counterclockwise,
+    /// Up the left side, back on the right.
+    Clockwise,
+}
+
+/// `[route]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RouteParams {
+    /// Which route table applies.
+    pub kind: RouteKind,
+    /// Headland turn radius, m (0 = half the spacing).
+    pub turn_radius_m: f64,
+    /// Overshoot into the headland before turning, m.
+    pub headland_overshoot_m: f64,
+    /// `[route.row_loop]`.
+    pub row_loop: RowLoopParams,
+    /// `[route.serpentine]`.
+    pub serpentine: SerpentineParams,
+    /// `[route.waypoints]`.
+    pub waypoints: WaypointsParams,
+}
+default_from_section!(RouteParams, "route");
+
+/// `[route.row_loop]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RowLoopParams {
+    /// Row index.
+    pub row: u32,
+    /// Direction.
+    pub direction: LoopDirection,
+    /// Number of laps.
+    pub laps: u32,
+}
+
+/// `[route.serpentine]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SerpentineParams {
+    /// First row.
+    pub first_row: u32,
+    /// Last row (inclusive).
+    pub last_row: u32,
+}
+
+/// `[route.waypoints]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WaypointsParams {
+    /// Points `[x, y]` in world ENU, m.
+    pub points: Vec<[f64; 2]>,
+    /// Return to the first point.
+    pub closed: bool,
+}
+
+/// `[sensors]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorsParams {
+    /// `[sensors.imu]`.
+    pub imu: ImuParams,
+    /// `[sensors.gnss]`.
+    pub gnss: GnssParams,
+    /// `[sensors.tracking_camera]`.
+    pub tracking_camera: TrackingCameraParams,
+    /// `[sensors.wheel_odom]`.
+    pub wheel_odom: WheelOdomParams,
+}
+default_from_section!(SensorsParams, "sensors");
+
+/// `[sensors.imu]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImuParams {
+    /// Simulate this sensor.
+    pub enabled: bool,
+    /// URDF link.
+    pub frame: String,
+    /// Sample rate, Hz.
+    pub rate_hz: f64,
+    /// Reception delay, ms.
+    pub latency_ms: f64,
+    /// Gyro white noise density, °/s/√Hz.
+    pub gyro_noise_density_dps_rthz: f64,
+    /// Gyro in-run bias stability, °/h.
+    pub gyro_bias_instability_dph: f64,
+    /// Accelerometer white noise density, µg/√Hz.
+    pub accel_noise_density_ug_rthz: f64,
+    /// Accelerometer in-run bias stability, µg.
+    pub accel_bias_instability_ug: f64,
+    /// Bias Gauss-Markov correlation time, s.
+    pub bias_correlation_time_s: f64,
+    /// Gyro turn-on bias (1σ), °/h.
+    pub gyro_turn_on_bias_dph: f64,
+    /// Accelerometer turn-on bias (1σ), µg.
+    pub accel_turn_on_bias_ug: f64,
+    /// AHRS roll/pitch error (1σ), degrees.
+    pub orientation_roll_pitch_sigma_deg: f64,
+    /// AHRS yaw error (1σ), degrees.
+    pub orientation_yaw_sigma_deg: f64,
+    /// AHRS error correlation time, s (0 = white).
+    pub orientation_correlation_time_s: f64,
+}
+default_from_section!(ImuParams, "sensors.imu");
+
+/// A GNSS solution type in scenario files.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GnssStatusParam {
+    /// No fix.
+    NoFix,
+    /// Single point.
+    Single,
+    /// RTK float.
+    RtkFloat,
+    /// RTK fixed.
+    RtkFixed,
+}
+
+impl From<GnssStatusParam> for vinebench_msgs::FixStatus {
+    fn from(s: GnssStatusParam) -> Self {
+        match s {
+            GnssStatusParam::NoFix => vinebench_msgs::FixStatus::NoFix,
+            GnssStatusParam::Single => vinebench_msgs::FixStatus::Single,
+            GnssStatusParam::RtkFloat => vinebench_msgs::FixStatus::RtkFloat,
+            GnssStatusParam::RtkFixed => vinebench_msgs::FixStatus::RtkFixed,
+        }
+    }
+}
+
+/// `[sensors.gnss]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GnssParams {
+    /// Simulate this sensor.
+    pub enabled: bool,
+    /// URDF link of the antenna.
+    pub frame: String,
+    /// Fix rate, Hz.
+    pub rate_hz: f64,
+    /// Reception delay, ms.
+    pub latency_ms: f64,
+    /// Solution type outside fault windows.
+    pub nominal_status: GnssStatusParam,
+    /// Velocity noise (1σ per axis), m/s.
+    pub velocity_sigma_mps: f64,
+    /// Reported-covariance factor.
+    pub reported_variance_scale: f64,
+    /// Error model with RTK fixed ambiguities.
+    pub rtk_fixed: GnssErrorParams,
+    /// Error model with RTK float ambiguities.
+    pub rtk_float: GnssErrorParams,
+    /// Error model of a single-point solution.
+    pub single: GnssErrorParams,
+}
+default_from_section!(GnssParams, "sensors.gnss");
+
+/// Error model of one GNSS solution type.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GnssErrorParams {
+    /// Horizontal error (1σ per axis), m.
+    pub sigma_horizontal_m: f64,
+    /// Vertical error (1σ), m.
+    pub sigma_vertical_m: f64,
+    /// Correlation time, s (0 = white).
+    pub correlation_time_s: f64,
+}
+
+/// `[sensors.tracking_camera]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrackingCameraParams {
+    /// Simulate this sensor.
+    pub enabled: bool,
+    /// URDF link of the camera's pose frame.
+    pub frame: String,
+    /// Output rate, Hz.
+    pub rate_hz: f64,
+    /// Reception delay, ms.
+    pub latency_ms: f64,
+    /// Scale error (1σ).
+    pub scale_error_sigma: f64,
+    /// Constant pitch error (1σ), degrees.
+    pub pitch_bias_sigma_deg: f64,
+    /// Yaw random walk, °/√m.
+    pub yaw_random_walk_deg_per_rtm: f64,
+    /// Roll/pitch random walk, °/√m.
+    pub roll_pitch_random_walk_deg_per_rtm: f64,
+    /// Position random walk, m/√m.
+    pub position_random_walk_m_per_rtm: f64,
+    /// Position jitter (1σ), m.
+    pub jitter_sigma_m: f64,
+}
+default_from_section!(TrackingCameraParams, "sensors.tracking_camera");
+
+/// `[sensors.wheel_odom]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WheelOdomParams {
+    /// Simulate this sensor.
+    pub enabled: bool,
+    /// Output rate, Hz.
+    pub rate_hz: f64,
+    /// Reception delay, ms.
+    pub latency_ms: f64,
+    /// Track speed noise (1σ), m/s.
+    pub speed_sigma_mps: f64,
+}
+default_from_section!(WheelOdomParams, "sensors.wheel_odom");
+
+/// `[faults]`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FaultsParams {
+    /// GNSS windows.
+    pub gnss: Vec<GnssFault>,
+}
+
+/// One `[[faults.gnss]]` window: the receiver reports `status` during `[start_s, end_s)`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GnssFault {
+    /// Window start, s after the first sample.
+    pub start_s: f64,
+    /// Window end, s after the first sample.
+    pub end_s: f64,
+    /// Forced solution type.
+    pub status: GnssStatusParam,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_section_reads_from_the_embedded_defaults() {
+        // Each Default impl panics if its table is missing or malformed.
+        let _ = WorldParams::default();
+        let _ = RobotParams::default();
+        let _ = MotionParams::default();
+        let _ = RouteParams::default();
+        let s = SensorsParams::default();
+        assert_eq!(s.imu.rate_hz, 200.0);
+        assert_eq!(s.gnss.nominal_status, GnssStatusParam::RtkFixed);
+        let f: FaultsParams = defaults::section("faults").unwrap();
+        assert!(f.gnss.is_empty());
+    }
+}
+
+/// A parameter value that cannot be used, named by its dotted path in the scenario
+/// (`world.rows.spacing_m`) so the scenario loader can point at its line and column.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("`{path}`: expected {expected}, found {found}")]
+pub struct ParamError {
+    /// Dotted path of the offending key.
+    pub path: String,
+    /// What would have been accepted.
+    pub expected: String,
+    /// What was given.
+    pub found: String,
+}
+
+impl ParamError {
+    /// A new error for `path`.
+    pub fn new(path: impl Into<String>, expected: impl Into<String>, found: impl ToString) -> Self {
+        ParamError { path: path.into(), expected: expected.into(), found: found.to_string() }
+    }
+}
+
+/// Checks `value > 0` and finite.
+pub fn require_positive(path: &str, value: f64) -> Result<f64, ParamError> {
+    if value.is_finite() && value > 0.0 {
+        Ok(value)
+    } else {
+        Err(ParamError::new(path, "a finite number > 0", value))
+    }
+}
+
+/// Checks `value >= 0` and finite.
+pub fn require_non_negative(path: &str, value: f64) -> Result<f64, ParamError> {
+    if value.is_finite() && value >= 0.0 {
+        Ok(value)
+    } else {
+        Err(ParamError::new(path, "a finite number >= 0", value))
+    }
+}
+
+/// Checks `lo <= value <= hi` and finite.
+pub fn require_in(path: &str, value: f64, lo: f64, hi: f64) -> Result<f64, ParamError> {
+    if value.is_finite() && value >= lo && value <= hi {
+        Ok(value)
+    } else {
+        Err(ParamError::new(path, format!("a number in [{lo}, {hi}]"), value))
+    }
+}

@@ -1,0 +1,1 @@
+//! Sensor model: gnss. (Implementation pending.)

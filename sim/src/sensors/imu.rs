@@ -1,0 +1,1 @@
+//! Sensor model: imu. (Implementation pending.)

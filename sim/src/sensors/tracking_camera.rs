@@ -1,0 +1,1 @@
+//! Sensor model: tracking_camera. (Implementation pending.)

@@ -1,0 +1,1 @@
+//! Sensor model: wheel_odom. (Implementation pending.)

@@ -1,0 +1,1 @@
+//! The Extended Information Filter of the seed paper. (Implementation pending.)

@@ -1,0 +1,93 @@
+//! Parameter types of the estimators (`[estimators]` in `scenarios/defaults.toml`, where
+//! every field is documented with its default).
+
+use serde::{Deserialize, Serialize};
+
+/// A trajectory source.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EstimatorKind {
+    /// The Extended Information Filter.
+    Eif,
+    /// GNSS position with IMU orientation (eq. 1).
+    Gnss,
+    /// Tracking-camera pose mapped into the world (eq. 2).
+    TrackingCamera,
+}
+
+impl EstimatorKind {
+    /// The source name (`eif`, `gnss`, `tracking_camera`).
+    pub fn name(self) -> &'static str {
+        match self {
+            EstimatorKind::Eif => "eif",
+            EstimatorKind::Gnss => "gnss",
+            EstimatorKind::TrackingCamera => "tracking_camera",
+        }
+    }
+}
+
+/// `[estimators]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EstimatorsParams {
+    /// Which sources run.
+    pub run: Vec<EstimatorKind>,
+    /// Re-ordering window, ms.
+    pub reorder_window_ms: f64,
+    /// `[estimators.eif]`.
+    pub eif: EifParams,
+}
+
+/// `[estimators.eif]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EifParams {
+    /// Output rate, Hz.
+    pub output_rate_hz: f64,
+    /// Use GNSS position fixes.
+    pub use_gnss_position: bool,
+    /// Use GNSS velocity.
+    pub use_gnss_velocity: bool,
+    /// Use the IMU's AHRS orientation.
+    pub use_imu_orientation: bool,
+    /// Use the tracking camera's relative pose.
+    pub use_tracking_camera: bool,
+    /// Gyro white noise density, °/s/√Hz.
+    pub gyro_noise_density_dps_rthz: f64,
+    /// Accelerometer white noise density, µg/√Hz.
+    pub accel_noise_density_ug_rthz: f64,
+    /// Extra gyro process noise, °/s/√Hz.
+    pub gyro_extra_noise_dps_rthz: f64,
+    /// Extra accelerometer process noise, µg/√Hz.
+    pub accel_extra_noise_ug_rthz: f64,
+    /// Gravity, m/s² (0 = normal gravity at the first fix).
+    pub gravity_mps2: f64,
+    /// Tracking-camera position noise, m/√m.
+    pub tracking_position_sigma_m_per_rtm: f64,
+    /// Tracking-camera rotation noise, °/√m.
+    pub tracking_rotation_sigma_deg_per_rtm: f64,
+    /// Tracking-camera position noise floor, m.
+    pub tracking_position_sigma_floor_m: f64,
+    /// Tracking-camera rotation noise floor, degrees.
+    pub tracking_rotation_sigma_floor_deg: f64,
+    /// GNSS Mahalanobis gate (0 = none).
+    pub gnss_gate_chi2: f64,
+    /// Initial velocity uncertainty, m/s.
+    pub initial_velocity_sigma_mps: f64,
+}
+
+impl Default for EstimatorsParams {
+    /// The values of `[estimators]` in `scenarios/defaults.toml`.
+    fn default() -> Self {
+        vinebench_msgs::defaults::section("estimators")
+            .expect("the embedded scenarios/defaults.toml is checked by tests")
+    }
+}
+
+impl Default for EifParams {
+    /// The values of `[estimators.eif]` in `scenarios/defaults.toml`.
+    fn default() -> Self {
+        vinebench_msgs::defaults::section("estimators.eif")
+            .expect("the embedded scenarios/defaults.toml is checked by tests")
+    }
+}

@@ -1,0 +1,1 @@
+//! Re-ordering of messages by stamp. (Implementation pending.)

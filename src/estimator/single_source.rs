@@ -1,0 +1,1 @@
+//! Single-source trajectories (GNSS-only, tracking-camera-only). (Implementation pending.)

@@ -1,0 +1,1 @@
+//! Scoring: align. (Implementation pending.)

@@ -1,0 +1,1 @@
+//! Scoring: metrics. (Implementation pending.)

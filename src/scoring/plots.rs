@@ -1,0 +1,1 @@
+//! Scoring: plots. (Implementation pending.)

@@ -1,0 +1,1 @@
+//! Scoring: tum. (Implementation pending.)
