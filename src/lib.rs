@@ -13,4 +13,6 @@
 //! - [`report`]: `report.json` and `report.md`.
 
 pub mod estimator;
+pub mod expect;
+pub mod scenario;
 pub mod scoring;

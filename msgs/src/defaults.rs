@@ -49,8 +49,10 @@ pub fn section<T: DeserializeOwned>(path: &str) -> Result<T, DefaultsError> {
             _ => return Err(DefaultsError::Missing(path.to_string())),
         };
     }
-    value.try_into().map_err(|e: toml::de::Error| DefaultsError::Shape {
-        path: path.to_string(),
-        message: e.to_string(),
-    })
+    value
+        .try_into()
+        .map_err(|e: toml::de::Error| DefaultsError::Shape {
+            path: path.to_string(),
+            message: e.to_string(),
+        })
 }

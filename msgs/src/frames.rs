@@ -77,7 +77,11 @@ impl StaticTransforms {
     }
     /// `body_from_<frame>`: the identity for the body frame itself, `None` when unknown.
     pub fn body_from(&self, frame: &str) -> Option<Isometry3<f64>> {
-        if self.body_frame.as_ref().is_some_and(|b| b.as_str() == frame) {
+        if self
+            .body_frame
+            .as_ref()
+            .is_some_and(|b| b.as_str() == frame)
+        {
             return Some(Isometry3::identity());
         }
         self.body_from.get(frame).copied()

@@ -160,11 +160,23 @@ mod tests {
 
     #[test]
     fn ecef_closed_form_points() {
-        let eq = ecef_from_geodetic(&Geodetic { lat_deg: 0.0, lon_deg: 0.0, alt_m: 0.0 });
+        let eq = ecef_from_geodetic(&Geodetic {
+            lat_deg: 0.0,
+            lon_deg: 0.0,
+            alt_m: 0.0,
+        });
         assert!((eq - Vector3::new(WGS84_A, 0.0, 0.0)).norm() < 1e-9);
-        let e90 = ecef_from_geodetic(&Geodetic { lat_deg: 0.0, lon_deg: 90.0, alt_m: 100.0 });
+        let e90 = ecef_from_geodetic(&Geodetic {
+            lat_deg: 0.0,
+            lon_deg: 90.0,
+            alt_m: 100.0,
+        });
         assert!((e90 - Vector3::new(0.0, WGS84_A + 100.0, 0.0)).norm() < 1e-6);
-        let pole = ecef_from_geodetic(&Geodetic { lat_deg: 90.0, lon_deg: 0.0, alt_m: 0.0 });
+        let pole = ecef_from_geodetic(&Geodetic {
+            lat_deg: 90.0,
+            lon_deg: 0.0,
+            alt_m: 0.0,
+        });
         assert!((pole - Vector3::new(0.0, 0.0, WGS84_B)).norm() < 1e-6);
         let back = geodetic_from_ecef(&pole);
         assert!((back.lat_deg - 90.0).abs() < 1e-9 && back.alt_m.abs() < 1e-6);
@@ -174,12 +186,19 @@ mod tests {
     fn enu_curvature_drop_matches_sphere_approximation() {
         // 1 km north of the origin on the ellipsoid surface the local horizontal plane is
         // above the surface by about d²/(2R) with R the meridian radius of curvature.
-        let origin = Geodetic { lat_deg: 40.4545, lon_deg: 17.9085, alt_m: 0.0 };
+        let origin = Geodetic {
+            lat_deg: 40.4545,
+            lon_deg: 17.9085,
+            alt_m: 0.0,
+        };
         let enu = LocalEnu::new(origin);
         let d = 1000.0;
         let sl2 = origin.lat_deg.to_radians().sin().powi(2);
         let m = WGS84_A * (1.0 - WGS84_E2) / (1.0 - WGS84_E2 * sl2).powf(1.5);
-        let north = Geodetic { lat_deg: origin.lat_deg + (d / m).to_degrees(), ..origin };
+        let north = Geodetic {
+            lat_deg: origin.lat_deg + (d / m).to_degrees(),
+            ..origin
+        };
         let p = enu.enu_from_geodetic(&north);
         assert!(p.x.abs() < 1e-6, "east {}", p.x);
         assert!((p.y - d).abs() < 1e-3, "north {}", p.y);

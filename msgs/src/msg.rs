@@ -232,7 +232,8 @@ impl Message {
             }
             Message::TrackingOdom(m) | Message::WheelOdom(m) => {
                 let p = &m.pose;
-                if !finite3(&p.translation.vector) || !p.rotation.coords.iter().all(|c| c.is_finite())
+                if !finite3(&p.translation.vector)
+                    || !p.rotation.coords.iter().all(|c| c.is_finite())
                 {
                     return Err(bad("pose", NOT_FINITE));
                 }
@@ -297,12 +298,19 @@ mod tests {
         assert!(err.to_string().contains("/imu/data"));
         let mut m = imu();
         m.orientation_covariance[(0, 1)] = 1.0;
-        assert_eq!(Message::Imu(m).validate().unwrap_err().field, "orientation_covariance");
+        assert_eq!(
+            Message::Imu(m).validate().unwrap_err().field,
+            "orientation_covariance"
+        );
     }
 
     #[test]
     fn no_fix_may_carry_nan_position() {
-        let nan = Geodetic { lat_deg: f64::NAN, lon_deg: f64::NAN, alt_m: f64::NAN };
+        let nan = Geodetic {
+            lat_deg: f64::NAN,
+            lon_deg: f64::NAN,
+            alt_m: f64::NAN,
+        };
         let mut fix = GnssFixMsg {
             stamp: Nanos(0),
             frame_id: FrameId::new("gnss_antenna"),
@@ -312,6 +320,9 @@ mod tests {
         };
         assert!(Message::GnssFix(fix.clone()).validate().is_ok());
         fix.status = FixStatus::RtkFixed;
-        assert_eq!(Message::GnssFix(fix).validate().unwrap_err().field, "position");
+        assert_eq!(
+            Message::GnssFix(fix).validate().unwrap_err().field,
+            "position"
+        );
     }
 }

@@ -51,7 +51,9 @@ impl Trajectory {
     }
     /// Body-origin positions in the world frame.
     pub fn positions(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
-        self.samples.iter().map(|s| s.world_from_body.translation.vector)
+        self.samples
+            .iter()
+            .map(|s| s.world_from_body.translation.vector)
     }
     /// Total path length (sum of distances between consecutive positions), metres.
     pub fn path_length_m(&self) -> f64 {

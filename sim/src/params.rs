@@ -458,7 +458,11 @@ pub struct ParamError {
 impl ParamError {
     /// A new error for `path`.
     pub fn new(path: impl Into<String>, expected: impl Into<String>, found: impl ToString) -> Self {
-        ParamError { path: path.into(), expected: expected.into(), found: found.to_string() }
+        ParamError {
+            path: path.into(),
+            expected: expected.into(),
+            found: found.to_string(),
+        }
     }
 }
 
@@ -485,6 +489,10 @@ pub fn require_in(path: &str, value: f64, lo: f64, hi: f64) -> Result<f64, Param
     if value.is_finite() && value >= lo && value <= hi {
         Ok(value)
     } else {
-        Err(ParamError::new(path, format!("a number in [{lo}, {hi}]"), value))
+        Err(ParamError::new(
+            path,
+            format!("a number in [{lo}, {hi}]"),
+            value,
+        ))
     }
 }

@@ -98,7 +98,11 @@ impl RobotModel {
             .find(|(n, _, _)| *n == name)
             .ok_or_else(|| RobotError::UnknownModel {
                 name: name.to_string(),
-                known: BUILTIN_MODELS.iter().map(|m| m.0).collect::<Vec<_>>().join(", "),
+                known: BUILTIN_MODELS
+                    .iter()
+                    .map(|m| m.0)
+                    .collect::<Vec<_>>()
+                    .join(", "),
             })?;
         RobotModel::from_urdf_str(text, file)
     }
@@ -106,8 +110,10 @@ impl RobotModel {
     /// Reads a URDF file.
     pub fn from_urdf_file(path: &Path) -> Result<RobotModel, RobotError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| RobotError::Io { file: file.clone(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| RobotError::Io {
+            file: file.clone(),
+            source,
+        })?;
         RobotModel::from_urdf_str(&text, &file)
     }
 
@@ -135,7 +141,10 @@ impl RobotModel {
                 if !v.iter().all(|c| c.is_finite()) {
                     return Err(invalid(
                         el,
-                        format!("<origin {what}> must be three finite numbers, found {:?}", v.0),
+                        format!(
+                            "<origin {what}> must be three finite numbers, found {:?}",
+                            v.0
+                        ),
                     ));
                 }
             }
@@ -146,13 +155,23 @@ impl RobotModel {
             }
             let pose = Isometry3::from_parts(
                 Translation3::new(j.origin.xyz[0], j.origin.xyz[1], j.origin.xyz[2]),
-                UnitQuaternion::from_euler_angles(j.origin.rpy[0], j.origin.rpy[1], j.origin.rpy[2]),
+                UnitQuaternion::from_euler_angles(
+                    j.origin.rpy[0],
+                    j.origin.rpy[1],
+                    j.origin.rpy[2],
+                ),
             );
             if parent_of
-                .insert(j.child.link.as_str(), (j.parent.link.as_str(), pose, j.name.as_str()))
+                .insert(
+                    j.child.link.as_str(),
+                    (j.parent.link.as_str(), pose, j.name.as_str()),
+                )
                 .is_some()
             {
-                return Err(invalid(el, format!("link `{}` has two parent joints", j.child.link)));
+                return Err(invalid(
+                    el,
+                    format!("link `{}` has two parent joints", j.child.link),
+                ));
             }
         }
         if !links.contains(BASE_LINK) {
@@ -199,9 +218,18 @@ impl RobotModel {
                 invalid(format!("<link name=\"{name}\">"), format!("missing: {why}"))
             })
         };
-        let footprint = need(FOOTPRINT_LINK, "the ground contact below base_link (REP-120)")?;
-        let left = need(LEFT_TRACK_LINK, "a tracked robot needs left_track and right_track links")?;
-        let right = need(RIGHT_TRACK_LINK, "a tracked robot needs left_track and right_track links")?;
+        let footprint = need(
+            FOOTPRINT_LINK,
+            "the ground contact below base_link (REP-120)",
+        )?;
+        let left = need(
+            LEFT_TRACK_LINK,
+            "a tracked robot needs left_track and right_track links",
+        )?;
+        let right = need(
+            RIGHT_TRACK_LINK,
+            "a tracked robot needs left_track and right_track links",
+        )?;
         let track_width_m = (left.translation.vector.y - right.translation.vector.y).abs();
         if track_width_m < 0.05 {
             return Err(invalid(
@@ -213,16 +241,23 @@ impl RobotModel {
         if ride_height_m <= 0.0 {
             return Err(invalid(
                 format!("<link name=\"{FOOTPRINT_LINK}\">"),
-                format!("must lie below base_link (negative z), found z = {}", -ride_height_m),
+                format!(
+                    "must lie below base_link (negative z), found z = {}",
+                    -ride_height_m
+                ),
             ));
         }
         let track_box = |name: &str| -> Option<[f64; 3]> {
-            robot.links.iter().find(|l| l.name == name)?.collision.iter().find_map(|c| {
-                match &c.geometry {
+            robot
+                .links
+                .iter()
+                .find(|l| l.name == name)?
+                .collision
+                .iter()
+                .find_map(|c| match &c.geometry {
                     urdf_rs::Geometry::Box { size } => Some(size.0),
                     _ => None,
-                }
-            })
+                })
         };
         let (len, wid) = match track_box(LEFT_TRACK_LINK) {
             Some(s) if s.iter().all(|c| c.is_finite() && *c > 0.0) => (s[0], s[1]),
@@ -249,19 +284,21 @@ impl RobotModel {
 
     /// `body_from_<frame>`, or an error naming the file and listing the known links.
     pub fn body_from(&self, frame: &str) -> Result<Isometry3<f64>, RobotError> {
-        self.static_transforms.body_from(frame).ok_or_else(|| RobotError::Invalid {
-            file: self.source.clone(),
-            element: format!("<link name=\"{frame}\">"),
-            problem: format!(
-                "missing: the scenario mounts a sensor on it; links are: {}",
-                self.static_transforms
-                    .body_from
-                    .keys()
-                    .map(|k| k.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-        })
+        self.static_transforms
+            .body_from(frame)
+            .ok_or_else(|| RobotError::Invalid {
+                file: self.source.clone(),
+                element: format!("<link name=\"{frame}\">"),
+                problem: format!(
+                    "missing: the scenario mounts a sensor on it; links are: {}",
+                    self.static_transforms
+                        .body_from
+                        .keys()
+                        .map(|k| k.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            })
     }
 }
 
@@ -286,7 +323,15 @@ mod tests {
         assert!((opt.rotation * Vector3::x() + Vector3::y()).norm() < 1e-12);
         // The side cameras are yawed by ±30.5°.
         let left = r.body_from("camera_left_link").unwrap();
-        assert!(((left.rotation * Vector3::x()).y.atan2((left.rotation * Vector3::x()).x).to_degrees() - 30.5).abs() < 1e-9);
+        assert!(
+            ((left.rotation * Vector3::x())
+                .y
+                .atan2((left.rotation * Vector3::x()).x)
+                .to_degrees()
+                - 30.5)
+                .abs()
+                < 1e-9
+        );
     }
 
     fn with(replace: &str, by: &str) -> String {
@@ -298,34 +343,59 @@ mod tests {
     #[test]
     fn malformed_urdfs_name_file_element_and_expectation() {
         let err = RobotModel::from_urdf_str(
-            &with(r#"<origin xyz="-0.04 0.02 -0.03""#, r#"<origin xyz="nan 0.02 -0.03""#),
+            &with(
+                r#"<origin xyz="-0.04 0.02 -0.03""#,
+                r#"<origin xyz="nan 0.02 -0.03""#,
+            ),
             "bad.urdf",
         )
         .unwrap_err()
         .to_string();
-        assert!(err.contains("bad.urdf") && err.contains("imu_joint") && err.contains("finite"), "{err}");
+        assert!(
+            err.contains("bad.urdf") && err.contains("imu_joint") && err.contains("finite"),
+            "{err}"
+        );
 
         let err = RobotModel::from_urdf_str(
-            &with(r#"<parent link="sensor_box"/>
-    <child link="imu_link"/>"#, r#"<parent link="sensor_boxx"/>
-    <child link="imu_link"/>"#),
+            &with(
+                r#"<parent link="sensor_box"/>
+    <child link="imu_link"/>"#,
+                r#"<parent link="sensor_boxx"/>
+    <child link="imu_link"/>"#,
+            ),
             "bad.urdf",
         )
         .unwrap_err()
         .to_string();
-        assert!(err.contains("sensor_boxx") && err.contains("not defined"), "{err}");
+        assert!(
+            err.contains("sensor_boxx") && err.contains("not defined"),
+            "{err}"
+        );
 
-        let err = RobotModel::from_urdf_str(&with(r#"<link name="left_track">"#, r#"<link name="left_trak">"#), "bad.urdf")
-            .unwrap_err()
-            .to_string();
+        let err = RobotModel::from_urdf_str(
+            &with(r#"<link name="left_track">"#, r#"<link name="left_trak">"#),
+            "bad.urdf",
+        )
+        .unwrap_err()
+        .to_string();
         assert!(err.contains("bad.urdf"), "{err}");
 
-        let err = RobotModel::from_urdf_str("<robot name='x'><link name=", "trunc.urdf").unwrap_err().to_string();
+        let err = RobotModel::from_urdf_str("<robot name='x'><link name=", "trunc.urdf")
+            .unwrap_err()
+            .to_string();
         assert!(err.starts_with("trunc.urdf: not a valid URDF"), "{err}");
 
         let r = RobotModel::builtin("tracked-sensorbox").unwrap();
         let err = r.body_from("lidar_link").unwrap_err().to_string();
-        assert!(err.contains("lidar_link") && err.contains("imu_link"), "{err}");
-        assert!(RobotModel::builtin("tank").unwrap_err().to_string().contains("tracked-sensorbox"));
+        assert!(
+            err.contains("lidar_link") && err.contains("imu_link"),
+            "{err}"
+        );
+        assert!(
+            RobotModel::builtin("tank")
+                .unwrap_err()
+                .to_string()
+                .contains("tracked-sensorbox")
+        );
     }
 }

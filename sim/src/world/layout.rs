@@ -122,7 +122,13 @@ mod tests {
     use proptest::prelude::*;
 
     fn layout(k: f64) -> RowLayout {
-        RowLayout { count: 5, length_m: 100.0, spacing_m: 2.5, yaw_rad: 0.4, curvature_per_m: k }
+        RowLayout {
+            count: 5,
+            length_m: 100.0,
+            spacing_m: 2.5,
+            yaw_rad: 0.4,
+            curvature_per_m: k,
+        }
     }
 
     #[test]

@@ -1,0 +1,345 @@
+//! The expectation language of scenario files: what must hold for a run to pass.
+//!
+//! An expectation compares a metric of one source with a number or with another
+//! source's metric, optionally scaled:
+//!
+//! ```text
+//! ate_rmse_m.eif <= 0.3
+//! sigma_u_m.eif < sigma_u_m.gnss
+//! d_m.tracking_camera > 2 * d_m.eif
+//! ```
+//!
+//! ```
+//! use vinebench::expect::Expectation;
+//! let e = Expectation::parse("sigma_u_m.eif < 0.5 * sigma_u_m.gnss", &["eif", "gnss"]).unwrap();
+//! let r = e.evaluate(|metric, source| match (metric, source) {
+//!     ("sigma_u_m", "eif") => Some(0.2),
+//!     ("sigma_u_m", "gnss") => Some(0.45),
+//!     _ => None,
+//! });
+//! assert!(r.holds);
+//! assert!((r.margin.unwrap() - 0.025).abs() < 1e-12);
+//! ```
+
+use serde::Serialize;
+use std::fmt;
+use thiserror::Error;
+
+/// Metric names an expectation may use (see `scenarios/defaults.toml`).
+pub const METRICS: &[(&str, &str)] = &[
+    (
+        "ate_rmse_m",
+        "absolute trajectory error, RMSE, no alignment (m)",
+    ),
+    (
+        "ate_rmse_aligned_m",
+        "absolute trajectory error, RMSE, after SE(3) Umeyama alignment (m)",
+    ),
+    (
+        "ate_mean_m",
+        "absolute trajectory error, mean, no alignment (m)",
+    ),
+    (
+        "ate_max_m",
+        "absolute trajectory error, maximum, no alignment (m)",
+    ),
+    (
+        "rpe_rmse_m",
+        "relative pose error over the scoring distance, translation RMSE (m)",
+    ),
+    ("d_m", "start-to-end distance, 3D (m) (Table 1: D)"),
+    (
+        "d_en_m",
+        "start-to-end distance in the East-North plane (m) (Table 1: D_EN)",
+    ),
+    (
+        "d_u_m",
+        "start-to-end altitude difference (m) (Table 1: D_U)",
+    ),
+    (
+        "sigma_u_m",
+        "standard deviation of the altitude along the path (m) (Table 1: σ_U)",
+    ),
+    (
+        "outage_max_error_m",
+        "largest position error inside the fault windows, no alignment (m)",
+    ),
+    (
+        "coverage",
+        "fraction of ground-truth poses with an estimate within the time tolerance",
+    ),
+];
+
+/// A comparison operator.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize)]
+pub enum Op {
+    /// `<`
+    Lt,
+    /// `<=`
+    Le,
+    /// `>`
+    Gt,
+    /// `>=`
+    Ge,
+}
+
+impl Op {
+    fn symbol(self) -> &'static str {
+        match self {
+            Op::Lt => "<",
+            Op::Le => "<=",
+            Op::Gt => ">",
+            Op::Ge => ">=",
+        }
+    }
+}
+
+/// `metric.source`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct MetricRef {
+    /// Metric name (one of [`METRICS`]).
+    pub metric: String,
+    /// Source name (`eif`, `gnss`, `tracking_camera`).
+    pub source: String,
+}
+
+impl fmt::Display for MetricRef {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}.{}", self.metric, self.source)
+    }
+}
+
+/// The right-hand side of an expectation.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub enum Rhs {
+    /// A number.
+    Number(f64),
+    /// `factor * metric.source`.
+    Metric {
+        /// Scale factor (1 when not written).
+        factor: f64,
+        /// The metric.
+        metric: MetricRef,
+    },
+}
+
+/// A parsed expectation.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Expectation {
+    /// The text as written.
+    pub text: String,
+    /// Left-hand side.
+    pub lhs: MetricRef,
+    /// Operator.
+    pub op: Op,
+    /// Right-hand side.
+    pub rhs: Rhs,
+}
+
+/// An expectation that cannot be parsed; the message says what was expected.
+#[derive(Clone, Debug, Error, PartialEq)]
+#[error("{0}")]
+pub struct ExpectationError(pub String);
+
+/// The outcome of one expectation.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ExpectationResult {
+    /// The text as written.
+    pub text: String,
+    /// Whether it holds.
+    pub holds: bool,
+    /// Value of the left-hand side (absent when the source produced no value).
+    pub lhs: Option<f64>,
+    /// Value of the right-hand side.
+    pub rhs: Option<f64>,
+    /// How far inside the bound the value is (positive) or outside it (negative), in the
+    /// metric's unit.
+    pub margin: Option<f64>,
+    /// Why it could not be evaluated, if so.
+    pub note: Option<String>,
+}
+
+impl fmt::Display for ExpectationResult {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let verdict = if self.holds { "holds" } else { "FAILS" };
+        match (self.lhs, self.rhs, self.margin) {
+            (Some(l), Some(r), Some(m)) => write!(
+                f,
+                "{verdict}: {}  ({l:.4} vs {r:.4}, {} {:.4})",
+                self.text,
+                if m >= 0.0 { "margin" } else { "off by" },
+                m.abs()
+            ),
+            _ => write!(
+                f,
+                "{verdict}: {}  ({})",
+                self.text,
+                self.note.as_deref().unwrap_or("no value")
+            ),
+        }
+    }
+}
+
+impl Expectation {
+    /// Parses `text`; `sources` are the sources the scenario runs.
+    pub fn parse(text: &str, sources: &[&str]) -> Result<Expectation, ExpectationError> {
+        let t = text.trim();
+        let ops = [("<=", Op::Le), (">=", Op::Ge), ("<", Op::Lt), (">", Op::Gt)];
+        let (pos, sym, op) = ops
+            .iter()
+            .filter_map(|(s, o)| t.find(s).map(|p| (p, *s, *o)))
+            .min_by_key(|(p, s, _)| (*p, std::cmp::Reverse(s.len())))
+            .ok_or_else(|| {
+                ExpectationError(format!(
+                    "expected `<metric>.<source> <op> <value>` with op one of < <= > >=, found {t:?}"
+                ))
+            })?;
+        let lhs = parse_ref(t[..pos].trim(), sources)?;
+        let right = t[pos + sym.len()..].trim();
+        let rhs = if let Ok(v) = right.parse::<f64>() {
+            if !v.is_finite() {
+                return Err(ExpectationError(format!(
+                    "the bound must be finite, found {right}"
+                )));
+            }
+            Rhs::Number(v)
+        } else if let Some((f, m)) = right.split_once('*') {
+            let factor: f64 = f.trim().parse().map_err(|_| {
+                ExpectationError(format!(
+                    "expected `<number> * <metric>.<source>` on the right, found {right:?}"
+                ))
+            })?;
+            Rhs::Metric {
+                factor,
+                metric: parse_ref(m.trim(), sources)?,
+            }
+        } else {
+            Rhs::Metric {
+                factor: 1.0,
+                metric: parse_ref(right, sources)?,
+            }
+        };
+        Ok(Expectation {
+            text: t.to_string(),
+            lhs,
+            op,
+            rhs,
+        })
+    }
+
+    /// Evaluates with `value(metric, source)`.
+    pub fn evaluate(&self, value: impl Fn(&str, &str) -> Option<f64>) -> ExpectationResult {
+        let lhs = value(&self.lhs.metric, &self.lhs.source);
+        let rhs = match &self.rhs {
+            Rhs::Number(v) => Some(*v),
+            Rhs::Metric { factor, metric } => {
+                value(&metric.metric, &metric.source).map(|v| factor * v)
+            }
+        };
+        let (holds, margin, note) = match (lhs, rhs) {
+            (Some(l), Some(r)) if l.is_finite() && r.is_finite() => {
+                let m = match self.op {
+                    Op::Lt | Op::Le => r - l,
+                    Op::Gt | Op::Ge => l - r,
+                };
+                let holds = match self.op {
+                    Op::Lt => l < r,
+                    Op::Le => l <= r,
+                    Op::Gt => l > r,
+                    Op::Ge => l >= r,
+                };
+                (holds, Some(m), None)
+            }
+            (None, _) => (false, None, Some(format!("{} has no value", self.lhs))),
+            (_, None) => (
+                false,
+                None,
+                Some("the right-hand side has no value".to_string()),
+            ),
+            _ => (false, None, Some("a value is NaN or infinite".to_string())),
+        };
+        ExpectationResult {
+            text: self.text.clone(),
+            holds,
+            lhs,
+            rhs,
+            margin,
+            note,
+        }
+    }
+
+    /// The operator as written.
+    pub fn op_symbol(&self) -> &'static str {
+        self.op.symbol()
+    }
+}
+
+fn parse_ref(s: &str, sources: &[&str]) -> Result<MetricRef, ExpectationError> {
+    let (metric, source) = s.split_once('.').ok_or_else(|| {
+        ExpectationError(format!(
+            "expected `<metric>.<source>` such as `ate_rmse_m.eif`, found {s:?}"
+        ))
+    })?;
+    if !METRICS.iter().any(|(m, _)| *m == metric) {
+        return Err(ExpectationError(format!(
+            "unknown metric `{metric}`; metrics are: {}",
+            METRICS.iter().map(|m| m.0).collect::<Vec<_>>().join(", ")
+        )));
+    }
+    if !sources.contains(&source) {
+        return Err(ExpectationError(format!(
+            "unknown source `{source}`; this scenario runs: {} (set [estimators] run)",
+            sources.join(", ")
+        )));
+    }
+    Ok(MetricRef {
+        metric: metric.to_string(),
+        source: source.to_string(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SRC: &[&str] = &["eif", "gnss", "tracking_camera"];
+
+    fn eval(text: &str, l: f64, r: f64) -> ExpectationResult {
+        Expectation::parse(text, SRC)
+            .unwrap()
+            .evaluate(|m, s| match (m, s) {
+                ("ate_rmse_m", "eif") | ("d_m", "tracking_camera") => Some(l),
+                ("ate_rmse_m", "gnss") | ("d_m", "eif") => Some(r),
+                _ => None,
+            })
+    }
+
+    #[test]
+    fn operators_and_margins() {
+        assert!(eval("ate_rmse_m.eif <= 0.3", 0.3, 0.0).holds);
+        assert!(!eval("ate_rmse_m.eif < 0.3", 0.3, 0.0).holds);
+        let r = eval("ate_rmse_m.eif < ate_rmse_m.gnss", 0.4, 0.5);
+        assert!(r.holds && (r.margin.unwrap() - 0.1).abs() < 1e-12);
+        let r = eval("d_m.tracking_camera > 2 * d_m.eif", 1.0, 0.6);
+        assert!(!r.holds && (r.margin.unwrap() + 0.2).abs() < 1e-12);
+        assert!(eval("d_m.tracking_camera >= 2*d_m.eif", 1.2, 0.6).holds);
+    }
+
+    #[test]
+    fn missing_values_fail_with_a_note() {
+        let r = eval("sigma_u_m.eif < 1", 0.0, 0.0);
+        assert!(!r.holds);
+        assert!(r.note.unwrap().contains("sigma_u_m.eif"));
+    }
+
+    #[test]
+    fn parse_errors_say_what_was_expected() {
+        let e = |t| Expectation::parse(t, SRC).unwrap_err().0;
+        assert!(e("ate_rmse_m.eif = 0.3").contains("op one of"));
+        assert!(e("ate.eif < 1").contains("unknown metric `ate`"));
+        assert!(e("ate_rmse_m.ekf < 1").contains("unknown source `ekf`"));
+        assert!(e("ate_rmse_m < 1").contains("<metric>.<source>"));
+        assert!(e("ate_rmse_m.eif < x * d_m.eif").contains("<number> *"));
+        assert!(e("ate_rmse_m.eif < inf").contains("finite"));
+    }
+}

@@ -1,0 +1,517 @@
+//! Scenario files: TOML merged over the embedded defaults, validated, with errors that
+//! point at the file, line, column and key.
+//!
+//! A scenario names the world, robot, route, sensors, faults, estimators and the
+//! expectations that must hold. Every key and its default is documented in
+//! `scenarios/defaults.toml`; a scenario file only states what differs. Tables merge key
+//! by key; arrays and plain values replace the default.
+//!
+//! ```
+//! let s = vinebench::scenario::LoadedScenario::from_str(
+//!     "name = \"short\"\n[world.rows]\ncount = 3\n",
+//!     "inline.toml",
+//! )
+//! .unwrap();
+//! assert_eq!(s.scenario.world.rows.count, 3);
+//! assert_eq!(s.scenario.world.rows.length_m, 120.0); // from the defaults
+//! ```
+
+use crate::estimator::EstimatorsParams;
+use crate::expect::{Expectation, ExpectationError};
+use crate::scoring::ScoringParams;
+use serde::{Deserialize, Serialize};
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+use vinebench_msgs::Nanos;
+use vinebench_msgs::geodesy::Geodetic;
+use vinebench_sim::params::{
+    FaultsParams, MotionParams, ParamError, RobotParams, RouteParams, SensorsParams, WorldParams,
+};
+
+/// A complete scenario, every field resolved (scenario file over defaults).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scenario {
+    /// Name, used in the run folder name.
+    pub name: String,
+    /// Free text for the report.
+    pub description: String,
+    /// Master seed.
+    pub seed: u64,
+    /// UTC time of the first sample (`YYYY-MM-DDTHH:MM:SSZ`).
+    pub start_time_utc: String,
+    /// Hard stop, s (0 = until the route is complete).
+    pub max_duration_s: f64,
+    /// Geodetic origin of the ENU world frame.
+    pub origin: Geodetic,
+    /// `[world]`.
+    pub world: WorldParams,
+    /// `[robot]`.
+    pub robot: RobotParams,
+    /// `[motion]`.
+    pub motion: MotionParams,
+    /// `[route]`.
+    pub route: RouteParams,
+    /// `[sensors]`.
+    pub sensors: SensorsParams,
+    /// `[faults]`.
+    pub faults: FaultsParams,
+    /// `[estimators]`.
+    pub estimators: EstimatorsParams,
+    /// `[scoring]`.
+    pub scoring: ScoringParams,
+    /// Expectations, in the expectation language (see [`crate::expect`]).
+    pub expect: Vec<String>,
+}
+
+/// A position in a scenario file (1-based line and column).
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct Location {
+    /// Line, from 1.
+    pub line: usize,
+    /// Column (in characters), from 1.
+    pub column: usize,
+}
+
+/// A scenario that cannot be used. Every variant names the file; where the problem is a
+/// key of the file, its line and column.
+#[derive(Debug, Error)]
+pub enum ScenarioError {
+    /// The file could not be read.
+    #[error("{file}: cannot read the scenario: {source}")]
+    Io {
+        /// The file.
+        file: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// Not valid TOML.
+    #[error("{file}:{}:{}: TOML syntax error: {message}", .at.line, .at.column)]
+    Syntax {
+        /// The file.
+        file: String,
+        /// Where.
+        at: Location,
+        /// The parser's message.
+        message: String,
+    },
+    /// A key has the wrong type or value, or is unknown.
+    #[error("{}: `{path}`: {message}", located(.file, .at))]
+    Field {
+        /// The file.
+        file: String,
+        /// Where the key is, when the file sets it (absent for a default value).
+        at: Option<Location>,
+        /// Dotted path of the key.
+        path: String,
+        /// What is wrong and what was expected.
+        message: String,
+    },
+}
+
+fn located(file: &str, at: &Option<Location>) -> String {
+    match at {
+        Some(l) => format!("{file}:{}:{}", l.line, l.column),
+        None => format!("{file} (value from scenarios/defaults.toml)"),
+    }
+}
+
+/// A scenario as loaded from a file, with what is needed to point at its keys later.
+#[derive(Clone, Debug)]
+pub struct LoadedScenario {
+    /// The resolved scenario.
+    pub scenario: Scenario,
+    /// The file it came from (as given), or a name for inline text.
+    pub file: String,
+    /// The scenario file's directory (relative paths in the scenario are resolved from it).
+    pub base_dir: PathBuf,
+    /// Time of the first sample.
+    pub start: Nanos,
+    /// Parsed expectations.
+    pub expectations: Vec<Expectation>,
+    /// The scenario file's text.
+    text: String,
+}
+
+impl LoadedScenario {
+    /// Reads and validates a scenario file.
+    pub fn load(path: &Path) -> Result<LoadedScenario, ScenarioError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io {
+            file: file.clone(),
+            source,
+        })?;
+        let mut s = LoadedScenario::from_str(&text, &file)?;
+        s.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        Ok(s)
+    }
+
+    /// Validates scenario text; `file` names it in errors.
+    #[allow(clippy::should_implement_trait)]
+    pub fn from_str(text: &str, file: &str) -> Result<LoadedScenario, ScenarioError> {
+        let doc = toml_edit::Document::parse(text).map_err(|e| ScenarioError::Syntax {
+            file: file.to_string(),
+            at: location_of(text, e.span().map(|s| s.start).unwrap_or(0)),
+            message: e.message().trim().to_string(),
+        })?;
+        let user: toml::Table = toml::from_str(text).map_err(|e| ScenarioError::Syntax {
+            file: file.to_string(),
+            at: location_of(text, e.span().map(|s| s.start).unwrap_or(0)),
+            message: e.message().trim().to_string(),
+        })?;
+        let mut merged =
+            vinebench_msgs::defaults::defaults_table().map_err(|e| ScenarioError::Field {
+                file: "scenarios/defaults.toml".into(),
+                at: None,
+                path: String::new(),
+                message: e.to_string(),
+            })?;
+        merge(&mut merged, user);
+        let scenario: Scenario = serde_path_to_error::deserialize(toml::Value::Table(merged))
+            .map_err(|e| {
+                let path = e.path().to_string();
+                let message = e.inner().message().trim().to_string();
+                let at_key = message.starts_with("unknown field");
+                let at = span_of(&doc, &path, at_key).map(|s| location_of(text, s.start));
+                ScenarioError::Field {
+                    file: file.to_string(),
+                    at,
+                    path,
+                    message,
+                }
+            })?;
+        let mut loaded = LoadedScenario {
+            scenario,
+            file: file.to_string(),
+            base_dir: PathBuf::new(),
+            start: Nanos(0),
+            expectations: Vec::new(),
+            text: text.to_string(),
+        };
+        loaded.validate()?;
+        Ok(loaded)
+    }
+
+    /// The error for a value that fails a check, located at its key.
+    pub fn field_error(&self, path: &str, message: impl Into<String>) -> ScenarioError {
+        ScenarioError::Field {
+            file: self.file.clone(),
+            at: self.locate(path),
+            path: path.to_string(),
+            message: message.into(),
+        }
+    }
+
+    /// Converts a simulator parameter error into a located scenario error.
+    pub fn param_error(&self, e: ParamError) -> ScenarioError {
+        self.field_error(
+            &e.path,
+            format!("expected {}, found {}", e.expected, e.found),
+        )
+    }
+
+    /// Where a dotted key path (`sensors.gnss.rate_hz`, `faults.gnss[1].end_s`) is set in
+    /// the scenario file, if it is.
+    pub fn locate(&self, path: &str) -> Option<Location> {
+        let doc = toml_edit::Document::parse(self.text.as_str()).ok()?;
+        span_of(&doc, path, false).map(|s| location_of(&self.text, s.start))
+    }
+
+    /// The scenario resolved over the defaults, as TOML (written to the run folder so a
+    /// run can be reproduced from it alone).
+    pub fn resolved_toml(&self) -> String {
+        toml::to_string(&self.scenario).unwrap_or_else(|e| format!("# cannot serialize: {e}\n"))
+    }
+
+    fn validate(&mut self) -> Result<(), ScenarioError> {
+        let s = &self.scenario;
+        self.start = vinebench_msgs::time::parse_utc(&s.start_time_utc).ok_or_else(|| {
+            self.field_error(
+                "start_time_utc",
+                format!(
+                    "expected a UTC time like \"2021-09-15T09:00:00Z\", found {:?}",
+                    s.start_time_utc
+                ),
+            )
+        })?;
+        if !s.origin.is_valid() {
+            return Err(self.field_error(
+                "origin",
+                "expected finite lat_deg in [-90, 90], lon_deg and alt_m",
+            ));
+        }
+        if !(s.max_duration_s.is_finite() && s.max_duration_s >= 0.0) {
+            return Err(self.field_error(
+                "max_duration_s",
+                format!("expected a number >= 0, found {}", s.max_duration_s),
+            ));
+        }
+        if s.name.is_empty()
+            || !s
+                .name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+        {
+            return Err(self.field_error(
+                "name",
+                format!(
+                    "expected a non-empty name of letters, digits, '-', '_' or '.' (it names the run folder), found {:?}",
+                    s.name
+                ),
+            ));
+        }
+        let e = &s.estimators;
+        if !(e.reorder_window_ms.is_finite() && e.reorder_window_ms >= 0.0) {
+            return Err(self.field_error(
+                "estimators.reorder_window_ms",
+                format!("expected a number >= 0, found {}", e.reorder_window_ms),
+            ));
+        }
+        for (i, a) in e.run.iter().enumerate() {
+            if e.run[..i].contains(a) {
+                return Err(self.field_error(
+                    &format!("estimators.run[{i}]"),
+                    format!("`{}` is listed twice", a.name()),
+                ));
+            }
+        }
+        let sc = &s.scoring;
+        for (key, v) in [
+            ("scoring.t_max_diff_s", sc.t_max_diff_s),
+            ("scoring.rpe_delta_m", sc.rpe_delta_m),
+            ("scoring.ground_truth_rate_hz", sc.ground_truth_rate_hz),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(self.field_error(key, format!("expected a number > 0, found {v}")));
+            }
+        }
+        for (i, f) in s.faults.gnss.iter().enumerate() {
+            if !(f.start_s.is_finite()
+                && f.end_s.is_finite()
+                && f.start_s >= 0.0
+                && f.end_s > f.start_s)
+            {
+                return Err(self.field_error(
+                    &format!("faults.gnss[{i}]"),
+                    format!(
+                        "expected 0 <= start_s < end_s, found start_s = {}, end_s = {}",
+                        f.start_s, f.end_s
+                    ),
+                ));
+            }
+        }
+        let sources: Vec<&'static str> = e.run.iter().map(|k| k.name()).collect();
+        let mut parsed = Vec::with_capacity(s.expect.len());
+        for (i, text) in s.expect.iter().enumerate() {
+            match Expectation::parse(text, &sources) {
+                Ok(x) => parsed.push(x),
+                Err(ExpectationError(msg)) => {
+                    return Err(self.field_error(&format!("expect[{i}]"), msg));
+                }
+            }
+        }
+        self.expectations = parsed;
+        Ok(())
+    }
+}
+
+/// Merges `over` into `base`: tables key by key (recursively), everything else replaces.
+fn merge(base: &mut toml::Table, over: toml::Table) {
+    for (k, v) in over {
+        match (base.get_mut(&k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o),
+            (_, v) => {
+                base.insert(k, v);
+            }
+        }
+    }
+}
+
+/// 1-based line and column of a byte offset.
+fn location_of(text: &str, offset: usize) -> Location {
+    let offset = offset.min(text.len());
+    let before = &text[..offset];
+    let line = before.matches('\n').count() + 1;
+    let line_start = before.rfind('\n').map(|i| i + 1).unwrap_or(0);
+    Location {
+        line,
+        column: text[line_start..offset].chars().count() + 1,
+    }
+}
+
+/// The span of the deepest element of `path` (`a.b[2].c`) that the document sets: the
+/// value for plain keys (the key itself when `at_key`), the key for tables.
+fn span_of(doc: &toml_edit::Document<&str>, path: &str, at_key: bool) -> Option<Range<usize>> {
+    use toml_edit::{Item, TableLike, Value};
+    enum Node<'a> {
+        Item(&'a Item),
+        Value(&'a Value),
+        Table(&'a toml_edit::Table),
+    }
+    let mut node = Node::Item(doc.as_item());
+    let mut best = None;
+    for seg in segments(path) {
+        node = match (seg, node) {
+            (Seg::Key(k), n) => {
+                let table: &dyn TableLike = match n {
+                    Node::Item(it) => it.as_table_like()?,
+                    Node::Value(Value::InlineTable(t)) => t,
+                    Node::Table(t) => t,
+                    Node::Value(_) => return best,
+                };
+                let Some((key, next)) = table.get_key_value(k) else {
+                    return best;
+                };
+                best = match next {
+                    Item::Value(v) if !at_key => v.span().or_else(|| key.span()),
+                    _ => key.span(),
+                }
+                .or(best);
+                Node::Item(next)
+            }
+            (Seg::Index(i), Node::Item(Item::ArrayOfTables(a))) => {
+                let Some(t) = a.get(i) else { return best };
+                best = t.span().or(best);
+                Node::Table(t)
+            }
+            (Seg::Index(i), Node::Item(Item::Value(Value::Array(a))))
+            | (Seg::Index(i), Node::Value(Value::Array(a))) => {
+                let Some(v) = a.get(i) else { return best };
+                best = v.span().or(best);
+                Node::Value(v)
+            }
+            (Seg::Index(_), _) => return best,
+        };
+    }
+    best
+}
+
+enum Seg<'a> {
+    Key(&'a str),
+    Index(usize),
+}
+
+/// Splits `a.b[2].c` into keys and indices.
+fn segments(path: &str) -> Vec<Seg<'_>> {
+    let mut out = Vec::new();
+    for part in path.split('.').filter(|p| !p.is_empty()) {
+        let (name, mut rest) = match part.find('[') {
+            Some(i) => (&part[..i], &part[i..]),
+            None => (part, ""),
+        };
+        if !name.is_empty() {
+            out.push(Seg::Key(name));
+        }
+        while let Some(close) = rest.find(']') {
+            if let Ok(i) = rest[1..close].parse::<usize>() {
+                out.push(Seg::Index(i));
+            }
+            rest = &rest[close + 1..];
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vinebench_msgs::defaults::DEFAULTS_TOML;
+
+    fn err(text: &str) -> String {
+        LoadedScenario::from_str(text, "bad.toml")
+            .unwrap_err()
+            .to_string()
+    }
+
+    #[test]
+    fn defaults_alone_are_a_valid_scenario() {
+        let s = LoadedScenario::from_str(DEFAULTS_TOML, "scenarios/defaults.toml").unwrap();
+        assert_eq!(s.scenario.name, "defaults");
+        assert_eq!(s.start, Nanos::from_secs(1_631_696_400));
+        // The resolved scenario reloads to itself.
+        let again = LoadedScenario::from_str(&s.resolved_toml(), "resolved.toml").unwrap();
+        assert_eq!(again.scenario, s.scenario);
+    }
+
+    #[test]
+    fn scenario_overrides_merge_key_by_key() {
+        let s = LoadedScenario::from_str(
+            "[sensors.gnss.rtk_float]\nsigma_horizontal_m = 0.5\n[[faults.gnss]]\nstart_s = 1\nend_s = 2\nstatus = \"single\"\n",
+            "x.toml",
+        )
+        .unwrap();
+        assert_eq!(s.scenario.sensors.gnss.rtk_float.sigma_horizontal_m, 0.5);
+        assert_eq!(s.scenario.sensors.gnss.rtk_float.sigma_vertical_m, 0.45);
+        assert_eq!(s.scenario.faults.gnss.len(), 1);
+    }
+
+    #[test]
+    fn unknown_key_is_located() {
+        let e = err("name = \"a\"\n\n[world.rows]\ncount = 3\nspacingg_m = 2.0\n");
+        assert!(
+            e.starts_with("bad.toml:5:1: `world.rows.spacingg_m`"),
+            "{e}"
+        );
+        assert!(e.contains("unknown field `spacingg_m`"), "{e}");
+        assert!(
+            e.contains("spacing_m"),
+            "should list the expected keys: {e}"
+        );
+    }
+
+    #[test]
+    fn wrong_type_is_located_at_the_value() {
+        let e = err("[world.rows]\ncount = \"six\"\n");
+        assert!(e.starts_with("bad.toml:2:9: `world.rows.count`"), "{e}");
+        assert!(e.contains("invalid type"), "{e}");
+    }
+
+    #[test]
+    fn bad_enum_value_lists_variants() {
+        let e = err("[route]\nkind = \"spiral\"\n");
+        assert!(e.starts_with("bad.toml:2:8: `route.kind`"), "{e}");
+        assert!(e.contains("row_loop") && e.contains("serpentine"), "{e}");
+    }
+
+    #[test]
+    fn syntax_error_is_located() {
+        let e = err("name = \"a\"\n[world.rows\ncount = 3\n");
+        assert!(e.starts_with("bad.toml:2:"), "{e}");
+        assert!(e.contains("TOML syntax error"), "{e}");
+    }
+
+    #[test]
+    fn semantic_errors_are_located() {
+        let e = err("start_time_utc = \"yesterday\"\n");
+        assert!(e.starts_with("bad.toml:1:18: `start_time_utc`"), "{e}");
+        let e = err("[[faults.gnss]]\nstart_s = 5.0\nend_s = 1.0\nstatus = \"no_fix\"\n");
+        assert!(
+            e.contains("`faults.gnss[0]`") && e.starts_with("bad.toml:1:"),
+            "{e}"
+        );
+        let e = err("expect = [\"ate_rmse_m.eif <= 0.3\", \"ate_rmse_m.ekf <= 0.3\"]\n");
+        assert!(e.starts_with("bad.toml:1:36: `expect[1]`"), "{e}");
+        assert!(e.contains("ekf"), "{e}");
+        let e = err("[estimators]\nrun = [\"eif\", \"eif\"]\n");
+        assert!(
+            e.contains("`estimators.run[1]`") && e.contains("twice"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn located_param_errors_point_at_the_key() {
+        let s = LoadedScenario::from_str("[route.row_loop]\nrow = 9\n", "r.toml").unwrap();
+        let e = s.param_error(ParamError::new("route.row_loop.row", "a row index < 6", 9));
+        assert_eq!(
+            e.to_string(),
+            "r.toml:2:7: `route.row_loop.row`: expected a row index < 6, found 9"
+        );
+        let e = s.param_error(ParamError::new("world.rows.count", "at least 1", 0));
+        assert!(
+            e.to_string()
+                .starts_with("r.toml (value from scenarios/defaults.toml)")
+        );
+    }
+}
