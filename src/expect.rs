@@ -315,6 +315,15 @@ mod tests {
     }
 
     #[test]
+    fn metric_names_are_those_scoring_computes() {
+        let mut ours: Vec<&str> = METRICS.iter().map(|m| m.0).collect();
+        let mut scoring = crate::scoring::SourceScore::METRIC_NAMES.to_vec();
+        ours.sort_unstable();
+        scoring.sort_unstable();
+        assert_eq!(ours, scoring);
+    }
+
+    #[test]
     fn operators_and_margins() {
         assert!(eval("ate_rmse_m.eif <= 0.3", 0.3, 0.0).holds);
         assert!(!eval("ate_rmse_m.eif < 0.3", 0.3, 0.0).holds);

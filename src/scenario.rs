@@ -276,16 +276,7 @@ impl LoadedScenario {
                 ));
             }
         }
-        let sc = &s.scoring;
-        for (key, v) in [
-            ("scoring.t_max_diff_s", sc.t_max_diff_s),
-            ("scoring.rpe_delta_m", sc.rpe_delta_m),
-            ("scoring.ground_truth_rate_hz", sc.ground_truth_rate_hz),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(self.field_error(key, format!("expected a number > 0, found {v}")));
-            }
-        }
+        s.scoring.validate().map_err(|e| self.param_error(e))?;
         for (i, f) in s.faults.gnss.iter().enumerate() {
             if !(f.start_s.is_finite()
                 && f.end_s.is_finite()

@@ -13,6 +13,8 @@ pub mod metrics;
 pub mod plots;
 pub mod tum;
 
+pub use metrics::{SourceScore, score_source};
+
 use serde::{Deserialize, Serialize};
 use vinebench_sim::params::{ParamError, require_non_negative, require_positive};
 
@@ -29,11 +31,6 @@ pub struct ScoringParams {
     pub rpe_pairs_from_reference: bool,
     /// Ground-truth output rate, Hz.
     pub ground_truth_rate_hz: f64,
-    /// Expectations (`"<metric>.<source> <op> ..."`, see the comment above `expect` in
-    /// `scenarios/defaults.toml`; metric names are [`metrics::SourceScore::METRIC_NAMES`]).
-    /// The key sits under `[scoring]` in the TOML, so it is part of this table.
-    #[serde(default)]
-    pub expect: Vec<String>,
 }
 
 impl ScoringParams {
