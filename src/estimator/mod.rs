@@ -1,18 +1,35 @@
 //! Estimators: trajectories from sensor messages alone.
 //!
 //! **Ground-truth firewall.** This module and its children may use only
-//! `vinebench_msgs` (messages, frames, time, geodesy, trajectories), `nalgebra`, `serde`
-//! and the standard library. They must run unchanged on a recording from a real robot.
-//! `tests/firewall.rs` enforces this by parsing every file under `src/estimator/`.
+//! `vinebench_msgs` (messages, frames, time, geodesy, trajectories), `nalgebra`, `serde`,
+//! `thiserror` and the standard library. They must run unchanged on a recording from a
+//! real robot. `tests/firewall.rs` enforces this by parsing every file under
+//! `src/estimator/`.
+//!
+//! The stage the runner calls is [`EstimatorSet`]: messages in arrival order go in
+//! ([`EstimatorSet::push`]); each is validated, re-ordered by stamp ([`reorder`]) and fanned
+//! out to the estimators of `[estimators] run`: the EIF ([`eif`]) and the single-source
+//! trajectories of the seed paper's Table 1 ([`single_source`]).
 
 pub mod eif;
+pub mod ins;
+mod linear;
+pub mod measurement;
 pub mod params;
 pub mod reorder;
+mod set;
 pub mod single_source;
+pub mod so3;
+mod synthetic;
 
+pub use eif::Eif;
 pub use params::{EifParams, EstimatorKind, EstimatorsParams};
+pub use set::{EstimationOutput, EstimatorOutput, EstimatorSet, SensorFrames, StageStats};
+pub use single_source::{GnssOnly, TrackingCameraOnly};
 
 use std::collections::BTreeMap;
+use std::fmt::Display;
+use thiserror::Error;
 use vinebench_msgs::{Message, Trajectory};
 
 /// Counters an estimator keeps about its input, for the report.
@@ -22,18 +39,69 @@ pub struct EstimatorStats {
     pub used: BTreeMap<String, u64>,
     /// Messages not used, by reason (`gnss_no_fix`, `gnss_gated`, `before_init`, ...).
     pub rejected: BTreeMap<String, u64>,
+    /// Other counted events that are not about one message (`imu_gap_bridged`, ...).
+    pub events: BTreeMap<String, u64>,
     /// Free-form notes for the report (e.g. "initialized at t = ... from RTK fix").
     pub notes: Vec<String>,
+}
+
+/// Increments `map[key]`, allocating the key only the first time (counters are bumped
+/// once per IMU sample).
+fn bump(map: &mut BTreeMap<String, u64>, key: &str) {
+    match map.get_mut(key) {
+        Some(c) => *c += 1,
+        None => {
+            map.insert(key.to_string(), 1);
+        }
+    }
 }
 
 impl EstimatorStats {
     /// Increments `used[kind]`.
     pub fn count_used(&mut self, kind: &str) {
-        *self.used.entry(kind.to_string()).or_default() += 1;
+        bump(&mut self.used, kind);
     }
     /// Increments `rejected[reason]`.
     pub fn count_rejected(&mut self, reason: &str) {
-        *self.rejected.entry(reason.to_string()).or_default() += 1;
+        bump(&mut self.rejected, reason);
+    }
+    /// Increments `events[event]`.
+    pub fn count_event(&mut self, event: &str) {
+        bump(&mut self.events, event);
+    }
+}
+
+/// Why an estimator (or the estimation stage) cannot be built.
+#[derive(Clone, Debug, Error, PartialEq)]
+pub enum EstimatorError {
+    /// A frame the estimator needs is not in the static transforms.
+    #[error("static transforms: frame `{frame}` needed by estimator `{estimator}` is missing")]
+    MissingFrame {
+        /// The frame name.
+        frame: String,
+        /// The estimator that needs it.
+        estimator: &'static str,
+    },
+    /// A parameter is out of range.
+    #[error("{path}: expected {expected}, found {found}")]
+    InvalidParam {
+        /// Dotted scenario path (`estimators.eif.output_rate_hz`).
+        path: String,
+        /// What is allowed.
+        expected: String,
+        /// What was given.
+        found: String,
+    },
+}
+
+impl EstimatorError {
+    /// An [`EstimatorError::InvalidParam`].
+    pub fn invalid(path: &str, expected: &str, found: impl Display) -> EstimatorError {
+        EstimatorError::InvalidParam {
+            path: path.to_string(),
+            expected: expected.to_string(),
+            found: found.to_string(),
+        }
     }
 }
 

@@ -72,6 +72,10 @@ pub struct EifParams {
     pub tracking_rotation_sigma_floor_deg: f64,
     /// GNSS Mahalanobis gate (0 = none).
     pub gnss_gate_chi2: f64,
+    /// Correlation time the filter assumes for GNSS position errors, s (0 = white).
+    pub gnss_correlation_time_s: f64,
+    /// Correlation time the filter assumes for AHRS orientation errors, s (0 = white).
+    pub orientation_correlation_time_s: f64,
     /// Initial velocity uncertainty, m/s.
     pub initial_velocity_sigma_mps: f64,
 }
