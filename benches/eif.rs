@@ -12,7 +12,7 @@
 
 use criterion::{BatchSize, Criterion, Throughput, black_box, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3};
-use vinebench::estimator::ins::{InsCore, Mat15, NavState, ProcessNoise};
+use vinebench::estimator::ins::{InsCore, ProcessNoise};
 use vinebench::estimator::{Eif, EifParams, Estimator};
 use vinebench_msgs::geodesy::{Geodetic, LocalEnu};
 use vinebench_msgs::{
@@ -20,40 +20,14 @@ use vinebench_msgs::{
 };
 
 const STEPS: usize = 10_000;
-const DT: f64 = 0.005;
+const DT: f64 = vinebench::bench::SYNTHETIC_IMU_DT_S;
 
-/// Deterministic IMU samples of a gently turning, vibrating vehicle (no RNG needed).
 fn samples(n: usize) -> Vec<(Vector3<f64>, Vector3<f64>)> {
-    (0..n)
-        .map(|k| {
-            let t = k as f64 * DT;
-            let f = Vector3::new(0.3 * (0.7 * t).sin(), 0.2 * (1.3 * t).cos(), 9.81)
-                + Vector3::new((37.0 * t).sin(), (41.0 * t).cos(), (43.0 * t).sin()) * 0.05;
-            let w = Vector3::new(
-                0.01 * (2.0 * t).sin(),
-                0.02 * (3.0 * t).cos(),
-                0.3 * (0.1 * t).sin(),
-            );
-            (f, w)
-        })
-        .collect()
+    vinebench::bench::synthetic_imu(n)
 }
 
 fn core_with_clone() -> InsCore {
-    let nav = NavState::at_rest(
-        Vector3::new(1.0, 2.0, 0.5),
-        UnitQuaternion::from_euler_angles(0.01, 0.02, 0.3),
-    );
-    let a = Mat15::from_fn(|i, j| {
-        if i == j {
-            1e-2
-        } else {
-            1e-4 / (1.0 + (i + j) as f64)
-        }
-    });
-    let mut core = InsCore::new(nav, a * a.transpose(), 9.80665);
-    core.reclone();
-    core
+    vinebench::bench::synthetic_core()
 }
 
 fn bench_predict(c: &mut Criterion) {

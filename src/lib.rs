@@ -12,7 +12,10 @@
 //! - [`runner`]: world → motion → sensors → estimators → scoring → run folder.
 //! - [`report`]: `report.json` and `report.md`.
 
+pub mod bench;
 pub mod estimator;
 pub mod expect;
+pub mod report;
+pub mod runner;
 pub mod scenario;
 pub mod scoring;

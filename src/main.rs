@@ -1,1 +1,394 @@
-fn main() {}
+//! The `vinebench` command line.
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Parser, Subcommand};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use vinebench::runner::{self, RunOptions};
+use vinebench::scenario::LoadedScenario;
+use vinebench::scoring::{self, metrics::PairsFrom};
+use vinebench_msgs::Nanos;
+
+/// Exit code: every expectation holds.
+const EXIT_PASS: u8 = 0;
+/// Exit code: at least one expectation fails.
+const EXIT_FAIL: u8 = 1;
+/// Exit code: bad input (scenario, URDF, TUM file, arguments) or an I/O failure.
+const EXIT_ERROR: u8 = 2;
+
+#[derive(Parser)]
+#[command(
+    name = "vinebench",
+    version,
+    about = "Simulation-in-the-loop test bench for vineyard robots",
+    long_about = "Simulation-in-the-loop test bench for vineyard robots.\n\n\
+        A scenario file (TOML) names a procedural vineyard, a robot, a route, sensor noise \
+        and faults, the estimators to run and what must hold. `vinebench run` simulates it, \
+        runs the estimators on the sensor messages alone, scores them against ground truth \
+        and writes a run folder. The exit code tells CI whether the expectations held: \
+        0 all hold, 1 one fails, 2 bad input.",
+    after_help = "Examples:\n  \
+        vinebench run scenarios/row-loop-rtk.toml              run one scenario, folder in runs/\n  \
+        vinebench run scenarios/poor-gnss.toml --out /tmp/r    choose the run folder\n  \
+        vinebench check scenarios/                             run every scenario, CI-style\n  \
+        vinebench check scenarios/ --shard 2/4                 this job's quarter of them\n  \
+        vinebench validate my-scenario.toml                    check a file without running it\n  \
+        vinebench defaults > my-scenario.toml                  every key with its default\n  \
+        vinebench score --ref runs/x/ground_truth.tum runs/x/estimate_eif.tum --align\n  \
+        vinebench bench                                        speed figures for docs/PERFORMANCE.md"
+)]
+struct Cli {
+    /// Worker threads for parallel stages (results do not depend on it).
+    #[arg(long, global = true, value_name = "N")]
+    threads: Option<usize>,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run one scenario end to end and write its run folder.
+    #[command(after_help = "Examples:\n  \
+        vinebench run scenarios/row-loop-rtk-outage.toml\n  \
+        vinebench run scenarios/defaults.toml --out /tmp/defaults-run --quiet\n\n\
+        The run folder holds ground_truth.tum, estimate_<source>.tum, report.json, report.md \
+        (with trajectories.svg, errors.svg, altitude.svg), scenario.resolved.toml and timing.json.")]
+    Run {
+        /// Scenario file.
+        scenario: PathBuf,
+        /// Run folder (default: runs/<name>-<UTC stamp>/).
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// No progress bar and no summary.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Run many scenarios (files or folders of *.toml) and summarise, for CI.
+    #[command(after_help = "Examples:\n  \
+        vinebench check scenarios/\n  \
+        vinebench check scenarios/row-loop-rtk.toml scenarios/poor-gnss.toml --runs /tmp/ci-runs\n  \
+        vinebench check scenarios/ --shard 1/3      # jobs 1/3, 2/3, 3/3 together cover all\n\n\
+        Folders contribute their *.toml files except defaults.toml. Exit code: 2 if any \
+        scenario has bad input, else 1 if any expectation fails, else 0.")]
+    Check {
+        /// Scenario files or folders.
+        #[arg(required = true)]
+        paths: Vec<PathBuf>,
+        /// Parent folder of the run folders.
+        #[arg(long, value_name = "DIR", default_value = "runs")]
+        runs: PathBuf,
+        /// Run only shard I of N (1-based), over the sorted list of scenarios.
+        #[arg(long, value_name = "I/N")]
+        shard: Option<String>,
+    },
+    /// Check scenario files (syntax, keys, values, world, robot, route, sensors) without
+    /// running them.
+    Validate {
+        /// Scenario files.
+        #[arg(required = true)]
+        scenarios: Vec<PathBuf>,
+    },
+    /// Print scenarios/defaults.toml: every scenario key with its default and meaning.
+    Defaults,
+    /// Score a TUM trajectory against a reference, like evo_ape / evo_rpe.
+    #[command(after_help = "Example:\n  \
+        vinebench score --ref ground_truth.tum estimate_eif.tum --align\n\
+        equals: evo_ape tum ground_truth.tum estimate_eif.tum --t_max_diff 0.01 -a")]
+    Score(ScoreArgs),
+    /// Measure speed: EIF predictions per second and simulation real-time factor.
+    Bench {
+        /// Fewer repetitions (a quick look, noisier figures).
+        #[arg(long)]
+        quick: bool,
+    },
+}
+
+#[derive(Args)]
+struct ScoreArgs {
+    /// Reference (ground-truth) TUM file.
+    #[arg(long = "ref", value_name = "TUM")]
+    reference: PathBuf,
+    /// Estimated TUM file.
+    estimate: PathBuf,
+    /// Maximum stamp difference for association, s (evo's --t_max_diff).
+    #[arg(long, default_value_t = 0.01)]
+    t_max_diff: f64,
+    /// RPE path distance, m (evo_rpe --delta D --delta_unit m).
+    #[arg(long, default_value_t = 1.0)]
+    delta: f64,
+    /// Align with SE(3) Umeyama before computing errors (evo's -a).
+    #[arg(long)]
+    align: bool,
+    /// Choose RPE pairs on the reference's path (evo_rpe --pairs_from_reference).
+    #[arg(long)]
+    pairs_from_reference: bool,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    if let Some(n) = cli.threads
+        && let Err(e) = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build_global()
+    {
+        eprintln!("error: --threads {n}: {e}");
+        return ExitCode::from(EXIT_ERROR);
+    }
+    match dispatch(cli.command) {
+        Ok(code) => ExitCode::from(code),
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(EXIT_ERROR)
+        }
+    }
+}
+
+fn dispatch(cmd: Command) -> Result<u8> {
+    match cmd {
+        Command::Run {
+            scenario,
+            out,
+            quiet,
+        } => {
+            let sc = LoadedScenario::load(&scenario)?;
+            let opts = RunOptions {
+                out_dir: out,
+                progress: !quiet,
+                ..RunOptions::default()
+            };
+            let outcome = runner::run(&sc, &opts)?;
+            if !quiet {
+                print_summary(&outcome);
+            }
+            Ok(if outcome.passed() {
+                EXIT_PASS
+            } else {
+                EXIT_FAIL
+            })
+        }
+        Command::Check { paths, runs, shard } => check(&paths, &runs, shard.as_deref()),
+        Command::Validate { scenarios } => {
+            let mut code = EXIT_PASS;
+            for p in scenarios {
+                match LoadedScenario::load(&p)
+                    .map_err(anyhow::Error::from)
+                    .and_then(|sc| {
+                        runner::validate(&sc)?;
+                        Ok(sc)
+                    }) {
+                    Ok(sc) => println!("ok: {} ({})", p.display(), sc.scenario.name),
+                    Err(e) => {
+                        eprintln!("error: {e:#}");
+                        code = EXIT_ERROR;
+                    }
+                }
+            }
+            Ok(code)
+        }
+        Command::Defaults => {
+            print!("{}", vinebench_msgs::defaults::DEFAULTS_TOML);
+            Ok(EXIT_PASS)
+        }
+        Command::Score(a) => score(&a),
+        Command::Bench { quick } => {
+            eprintln!("measuring (about {} s)...", if quick { 5 } else { 30 });
+            let figures = vinebench::bench::run_all(quick)?;
+            println!("| figure | value | target |\n|---|---:|---:|");
+            for f in figures {
+                let target = f
+                    .target
+                    .map(|t| format!(">= {t:.0} {}", f.unit))
+                    .unwrap_or_default();
+                println!("| {} | {:.0} {} | {target} |", f.name, f.value, f.unit);
+            }
+            println!(
+                "\n{} threads available; vinebench {} ({} build)",
+                std::thread::available_parallelism()
+                    .map(|n| n.get())
+                    .unwrap_or(1),
+                env!("CARGO_PKG_VERSION"),
+                if cfg!(debug_assertions) {
+                    "debug"
+                } else {
+                    "release"
+                }
+            );
+            Ok(EXIT_PASS)
+        }
+    }
+}
+
+fn print_summary(o: &runner::RunOutcome) {
+    let r = &o.report;
+    println!(
+        "{}: {:.0} s simulated in {:.2} s ({:.0}x real time), {:.1} m driven",
+        r.scenario.name,
+        r.run.duration_s,
+        o.wall_s,
+        r.run.duration_s / o.wall_s.max(1e-9),
+        r.run.distance_m
+    );
+    println!(
+        "{:<16} {:>9} {:>9} {:>9} {:>9} {:>9} {:>12}",
+        "source", "D [m]", "D_EN [m]", "D_U [m]", "σ_U [m]", "ATE [m]", "ATE al. [m]"
+    );
+    if let Some(g) = &r.ground_truth {
+        println!(
+            "{:<16} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9} {:>12}",
+            "ground truth", g.d_m, g.d_en_m, g.d_u_m, g.sigma_u_m, "", ""
+        );
+    }
+    for s in &r.sources {
+        let m = |k: &str| {
+            s.score
+                .metric(k)
+                .map(|v| format!("{v:.3}"))
+                .unwrap_or_else(|| "–".into())
+        };
+        println!(
+            "{:<16} {:>9} {:>9} {:>9} {:>9} {:>9} {:>12}",
+            s.name,
+            m("d_m"),
+            m("d_en_m"),
+            m("d_u_m"),
+            m("sigma_u_m"),
+            m("ate_rmse_m"),
+            m("ate_rmse_aligned_m")
+        );
+    }
+    for x in &r.expectations {
+        println!("{x}");
+    }
+    println!(
+        "{} — report: {}",
+        if r.passed { "PASS" } else { "FAIL" },
+        o.dir.join("report.md").display()
+    );
+}
+
+fn collect_scenarios(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    for p in paths {
+        if p.is_dir() {
+            let mut in_dir: Vec<PathBuf> = std::fs::read_dir(p)
+                .with_context(|| format!("{}: cannot list the folder", p.display()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|f| {
+                    f.extension().is_some_and(|x| x == "toml")
+                        && f.file_name().is_some_and(|n| n != "defaults.toml")
+                })
+                .collect();
+            in_dir.sort();
+            files.extend(in_dir);
+        } else if p.exists() {
+            files.push(p.clone());
+        } else {
+            bail!("{}: no such file or folder", p.display());
+        }
+    }
+    Ok(files)
+}
+
+fn parse_shard(s: &str) -> Result<(usize, usize)> {
+    let (i, n) = s
+        .split_once('/')
+        .with_context(|| format!("--shard {s}: expected I/N such as 2/4"))?;
+    let (i, n): (usize, usize) = (
+        i.trim()
+            .parse()
+            .with_context(|| format!("--shard {s}: I is not a number"))?,
+        n.trim()
+            .parse()
+            .with_context(|| format!("--shard {s}: N is not a number"))?,
+    );
+    if n == 0 || i == 0 || i > n {
+        bail!("--shard {s}: expected 1 <= I <= N");
+    }
+    Ok((i, n))
+}
+
+fn check(paths: &[PathBuf], runs: &Path, shard: Option<&str>) -> Result<u8> {
+    let mut files = collect_scenarios(paths)?;
+    if let Some(s) = shard {
+        let (i, n) = parse_shard(s)?;
+        files = files
+            .into_iter()
+            .enumerate()
+            .filter(|(k, _)| k % n == i - 1)
+            .map(|(_, f)| f)
+            .collect();
+    }
+    if files.is_empty() {
+        bail!("no scenario files found in {:?}", paths);
+    }
+    let mut worst = EXIT_PASS;
+    let mut rows = Vec::new();
+    for f in &files {
+        let result = LoadedScenario::load(f)
+            .map_err(anyhow::Error::from)
+            .and_then(|sc| {
+                let opts = RunOptions {
+                    runs_root: runs.to_path_buf(),
+                    ..RunOptions::default()
+                };
+                Ok(runner::run(&sc, &opts)?)
+            });
+        match result {
+            Ok(o) => {
+                let held = o.report.expectations.iter().filter(|x| x.holds).count();
+                let verdict = if o.passed() { "PASS" } else { "FAIL" };
+                if !o.passed() {
+                    worst = worst.max(EXIT_FAIL);
+                    for x in o.report.expectations.iter().filter(|x| !x.holds) {
+                        eprintln!("{}: {x}", f.display());
+                    }
+                }
+                rows.push(format!(
+                    "{verdict:<5} {:<40} {held}/{} expectations  {:.1}s wall  {}",
+                    f.display(),
+                    o.report.expectations.len(),
+                    o.wall_s,
+                    o.dir.display()
+                ));
+            }
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                worst = EXIT_ERROR;
+                rows.push(format!("ERROR {:<40} see above", f.display()));
+            }
+        }
+    }
+    println!("\n{} scenario(s):", files.len());
+    for r in rows {
+        println!("{r}");
+    }
+    Ok(worst)
+}
+
+fn score(a: &ScoreArgs) -> Result<u8> {
+    let reference = scoring::tum::read_tum(&a.reference)?;
+    let estimate = scoring::tum::read_tum(&a.estimate)?;
+    let max_diff = Nanos::from_secs_f64(a.t_max_diff);
+    let pairs = if a.pairs_from_reference {
+        PairsFrom::Reference
+    } else {
+        PairsFrom::Estimate
+    };
+    let ape = scoring::metrics::ape(&reference, &estimate, max_diff, a.align)?;
+    let rpe = scoring::metrics::rpe(&reference, &estimate, max_diff, a.delta, a.align, pairs)?;
+    let out = serde_json::json!({
+        "reference": a.reference.display().to_string(),
+        "estimate": a.estimate.display().to_string(),
+        "t_max_diff_s": a.t_max_diff,
+        "aligned": a.align,
+        "matched_poses": ape.matched,
+        "ape_translation_m": ape.stats,
+        "rpe_translation_m": {
+            "delta_m": a.delta,
+            "pairs_from": if a.pairs_from_reference { "reference" } else { "estimate" },
+            "stats": rpe.stats,
+        },
+    });
+    println!("{out:#}");
+    Ok(EXIT_PASS)
+}

@@ -104,6 +104,12 @@ pub const VELOCITY_FLOOR_MPS: f64 = 1e-4;
 pub const ROTATION_FLOOR_RAD: f64 = 1e-5;
 /// Shortest spacing used in the correlation weighting, s.
 const MIN_CORRELATION_DT_S: f64 = 1e-3;
+/// Consecutive GNSS fixes the gate may reject before the filter concludes that it, not
+/// the receiver, is wrong (1 s at 10 Hz). The next fix is then accepted after the
+/// position and velocity uncertainty are re-opened to the innovation (see
+/// `gnss_gate_recovered` in the stats), so an overconfident filter can never lock
+/// itself out of GNSS for good.
+pub const GATE_RECOVERY_FIXES: u32 = 10;
 
 /// The EIF's parameters in SI units.
 #[derive(Clone, Debug, PartialEq)]
@@ -286,6 +292,8 @@ struct Filter {
     omega: Vector3<f64>,
     prev_tracking: Option<PrevTracking>,
     last_fix_used: Nanos,
+    /// GNSS fixes rejected by the gate since the last accepted one.
+    gated_in_a_row: u32,
     last_orientation_used: Nanos,
     last_orientation_queued: Option<Nanos>,
     next_output: Nanos,
@@ -576,6 +584,7 @@ impl Eif {
             omega: imu.w,
             prev_tracking: None,
             last_fix_used: fix.stamp,
+            gated_in_a_row: 0,
             last_orientation_used: imu.t,
             last_orientation_queued: Some(imu.t),
             next_output: imu.t + self.cfg.output_period,
@@ -627,6 +636,7 @@ impl Eif {
         let mut eta = Vec15::zeros();
         let mut counts = GroupCounts::default();
         let mut n_info = 0usize;
+        let mut recovered = 0u32;
         let mut reject = |why: &str| stats.count_rejected(why);
         let mut reclone_with: Option<PrevTracking> = None;
         let nav = f.core.nav.clone();
@@ -641,10 +651,29 @@ impl Eif {
                         match Cholesky::new(s) {
                             Some(c) => {
                                 let d2 = lin.residual.dot(&c.solve(&lin.residual));
-                                if d2.is_nan() || d2 > cfg.gate_chi2 {
-                                    reject("gnss_gated");
+                                if d2.is_nan() {
+                                    reject("numerical_skip");
                                     continue;
                                 }
+                                if d2 > cfg.gate_chi2 {
+                                    f.gated_in_a_row += 1;
+                                    if f.gated_in_a_row <= GATE_RECOVERY_FIXES {
+                                        reject("gnss_gated");
+                                        continue;
+                                    }
+                                    // Every fix for a while disagreed: the filter is lost.
+                                    // Re-open its position uncertainty to the innovation
+                                    // and its velocity to the drift rate that explains it.
+                                    let y = lin.residual;
+                                    let yy = y * y.transpose();
+                                    let dt = (f.t - f.last_fix_used).as_secs_f64().max(1.0);
+                                    let mut pp = f.core.cov.fixed_view_mut::<3, 3>(IDX_P, IDX_P);
+                                    pp += yy;
+                                    let mut vv = f.core.cov.fixed_view_mut::<3, 3>(IDX_V, IDX_V);
+                                    vv += yy / (dt * dt);
+                                    recovered += 1;
+                                }
+                                f.gated_in_a_row = 0;
                             }
                             None => {
                                 reject("numerical_skip");
@@ -748,6 +777,9 @@ impl Eif {
         if let Some(prev) = reclone_with {
             f.core.reclone();
             f.prev_tracking = Some(prev);
+        }
+        for _ in 0..recovered {
+            self.stats.count_event("gnss_gate_recovered");
         }
         for (k, name) in KIND_NAMES.iter().enumerate() {
             for _ in 0..counts.kinds[k] {

@@ -1,0 +1,144 @@
+//! `vinebench bench`: the speed figures kept in `docs/PERFORMANCE.md`.
+//!
+//! - EIF prediction throughput: [`InsCore::predict`] (nominal propagation and the
+//!   block-structured covariance propagation with the tracking-camera clone active) on
+//!   deterministic synthetic IMU samples, one core.
+//! - Whole-simulation real-time factor: the default scenario (a closed loop around a
+//!   120 m row, no cameras) simulated, estimated and scored, without writing files; and
+//!   the same with no estimator, to separate simulation from estimation cost.
+//!
+//! The criterion benches (`cargo bench`) measure the same things with statistics;
+//! this command gives a quick table on any machine.
+
+use crate::estimator::ins::{InsCore, Mat15, NavState, ProcessNoise};
+use crate::runner::{RunError, score, simulate};
+use crate::scenario::{LoadedScenario, ScenarioError};
+use nalgebra::{UnitQuaternion, Vector3};
+use std::hint::black_box;
+use std::time::Instant;
+use thiserror::Error;
+use vinebench_msgs::defaults::DEFAULTS_TOML;
+
+/// IMU period of the synthetic samples, s (200 Hz).
+pub const SYNTHETIC_IMU_DT_S: f64 = 0.005;
+
+/// A benchmark that could not run.
+#[derive(Debug, Error)]
+pub enum BenchError {
+    /// The embedded defaults did not load (a bug).
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    /// The simulation failed.
+    #[error(transparent)]
+    Run(#[from] RunError),
+}
+
+/// Deterministic IMU samples `(specific force, angular rate)` in the IMU frame of a
+/// gently turning, vibrating vehicle, at [`SYNTHETIC_IMU_DT_S`] (no RNG needed).
+pub fn synthetic_imu(n: usize) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+    (0..n)
+        .map(|k| {
+            let t = k as f64 * SYNTHETIC_IMU_DT_S;
+            let f = Vector3::new(0.3 * (0.7 * t).sin(), 0.2 * (1.3 * t).cos(), 9.81)
+                + Vector3::new((37.0 * t).sin(), (41.0 * t).cos(), (43.0 * t).sin()) * 0.05;
+            let w = Vector3::new(
+                0.01 * (2.0 * t).sin(),
+                0.02 * (3.0 * t).cos(),
+                0.3 * (0.1 * t).sin(),
+            );
+            (f, w)
+        })
+        .collect()
+}
+
+/// An INS core at rest with a dense, positive-definite covariance and the clone active.
+pub fn synthetic_core() -> InsCore {
+    let nav = NavState::at_rest(
+        Vector3::new(1.0, 2.0, 0.5),
+        UnitQuaternion::from_euler_angles(0.01, 0.02, 0.3),
+    );
+    let a = Mat15::from_fn(|i, j| {
+        if i == j {
+            1e-2
+        } else {
+            1e-4 / (1.0 + (i + j) as f64)
+        }
+    });
+    let mut core = InsCore::new(nav, a * a.transpose(), 9.80665);
+    core.reclone();
+    core
+}
+
+/// One figure of the bench.
+#[derive(Clone, Debug)]
+pub struct Figure {
+    /// What was measured.
+    pub name: &'static str,
+    /// The value.
+    pub value: f64,
+    /// Its unit.
+    pub unit: &'static str,
+    /// The target from the issue tracker, if any (same unit, "at least").
+    pub target: Option<f64>,
+}
+
+/// EIF predictions per second (best of `repeats` runs of `steps` predictions).
+pub fn eif_predictions_per_second(steps: usize, repeats: usize) -> f64 {
+    let data = synthetic_imu(steps);
+    let noise = ProcessNoise::from_datasheet(0.01, 0.002, 60.0, 20.0);
+    let mut best = f64::INFINITY;
+    for _ in 0..repeats.max(1) {
+        let mut core = synthetic_core();
+        let t0 = Instant::now();
+        for (f, w) in &data {
+            core.predict(black_box(SYNTHETIC_IMU_DT_S), f, w, &noise);
+        }
+        black_box(&core.nav.p);
+        best = best.min(t0.elapsed().as_secs_f64());
+    }
+    steps as f64 / best
+}
+
+/// Real-time factor of the default scenario (simulate + estimate + score), best of
+/// `repeats`; with `estimators = false` the estimators are switched off.
+pub fn row_loop_real_time_factor(estimators: bool, repeats: usize) -> Result<f64, BenchError> {
+    let mut sc = LoadedScenario::from_str(DEFAULTS_TOML, "scenarios/defaults.toml")?;
+    if !estimators {
+        sc.scenario.estimators.run.clear();
+    }
+    let mut best = f64::INFINITY;
+    let mut simulated = 0.0;
+    for _ in 0..repeats.max(1) {
+        let t0 = Instant::now();
+        let sim = simulate(&sc, None)?;
+        black_box(score(&sc, &sim));
+        best = best.min(t0.elapsed().as_secs_f64());
+        simulated = sim.duration_s;
+    }
+    Ok(simulated / best)
+}
+
+/// Runs every figure.
+pub fn run_all(quick: bool) -> Result<Vec<Figure>, BenchError> {
+    let (steps, repeats) = if quick { (200_000, 2) } else { (2_000_000, 5) };
+    Ok(vec![
+        Figure {
+            name: "EIF IMU predictions per second (15-state clone active, one core)",
+            value: eif_predictions_per_second(steps, repeats),
+            unit: "1/s",
+            target: Some(1e6),
+        },
+        Figure {
+            name: "120 m row loop, simulation + EIF + single-source + scoring, real-time factor",
+            value: row_loop_real_time_factor(true, repeats.min(3))?,
+            unit: "x",
+            target: Some(100.0),
+        },
+        Figure {
+            name: "120 m row loop, simulation and sensors only, real-time factor",
+            value: row_loop_real_time_factor(false, repeats.min(3))?,
+            unit: "x",
+            target: None,
+        },
+    ])
+}

@@ -1,0 +1,372 @@
+//! The run report: `report.json` (for machines), `report.md` with plots (for people).
+//!
+//! Everything in the report is a deterministic function of the scenario: wall-clock
+//! timing goes to `timing.json` instead, so two runs of a scenario give byte-identical
+//! reports.
+
+use crate::expect::ExpectationResult;
+use crate::runner::{RunError, Simulation};
+use crate::scenario::LoadedScenario;
+use crate::scoring::{self, SourceScore, metrics};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::Path;
+use vinebench_msgs::{Nanos, Trajectory};
+
+/// The report of one run.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    /// vinebench version that produced it.
+    pub vinebench_version: &'static str,
+    /// Scenario identification.
+    pub scenario: ScenarioInfo,
+    /// What was simulated.
+    pub run: RunInfo,
+    /// Closed-loop metrics of the ground truth itself (reference for Table 1; absent for
+    /// a trajectory too short to have them).
+    pub ground_truth: Option<metrics::LoopMetrics>,
+    /// One entry per estimator, in the order of `[estimators] run`.
+    pub sources: Vec<SourceReport>,
+    /// Expectation outcomes, in file order.
+    pub expectations: Vec<ExpectationResult>,
+    /// True when every expectation holds.
+    pub passed: bool,
+}
+
+/// Scenario identification in a report.
+#[derive(Clone, Debug, Serialize)]
+pub struct ScenarioInfo {
+    /// Name.
+    pub name: String,
+    /// Description.
+    pub description: String,
+    /// File it was loaded from.
+    pub file: String,
+    /// Master seed.
+    pub seed: u64,
+    /// SHA-256 of the generated world.
+    pub world_digest: String,
+}
+
+/// Facts about the simulation.
+#[derive(Clone, Debug, Serialize)]
+pub struct RunInfo {
+    /// UTC time of the first sample.
+    pub start_time_utc: String,
+    /// Simulated duration, s.
+    pub duration_s: f64,
+    /// Distance travelled, m.
+    pub distance_m: f64,
+    /// Whether the route was completed.
+    pub route_completed: bool,
+    /// Messages produced per topic.
+    pub messages: BTreeMap<String, u64>,
+    /// Messages dropped before the estimators: late beyond the re-ordering window.
+    pub late_dropped: u64,
+    /// Messages dropped before the estimators because a field was NaN or invalid, by
+    /// `topic field`.
+    pub invalid_dropped: BTreeMap<String, u64>,
+    /// Fault windows, s after the start.
+    pub fault_windows_s: Vec<(f64, f64)>,
+}
+
+/// One estimator's results.
+#[derive(Clone, Debug, Serialize)]
+pub struct SourceReport {
+    /// Source name.
+    pub name: String,
+    /// Number of poses it produced.
+    pub poses: usize,
+    /// Metrics against ground truth.
+    pub score: SourceScore,
+    /// Messages used by kind.
+    pub used: BTreeMap<String, u64>,
+    /// Messages not used, by reason.
+    pub rejected: BTreeMap<String, u64>,
+    /// Notes (initialisation and the like).
+    pub notes: Vec<String>,
+}
+
+impl Report {
+    /// Assembles the report of a simulation.
+    pub fn new(
+        sc: &LoadedScenario,
+        sim: &Simulation,
+        scores: Vec<(String, SourceScore)>,
+        expectations: Vec<ExpectationResult>,
+    ) -> Report {
+        let s = &sc.scenario;
+        let sources = sim
+            .estimates
+            .iter()
+            .zip(scores)
+            .map(|(e, (name, score))| {
+                let stats = &e.stats;
+                SourceReport {
+                    name,
+                    poses: e.trajectory.len(),
+                    score,
+                    used: stats.used.clone(),
+                    rejected: stats.rejected.clone(),
+                    notes: stats.notes.clone(),
+                }
+            })
+            .collect();
+        let passed = expectations.iter().all(|x| x.holds);
+        Report {
+            vinebench_version: env!("CARGO_PKG_VERSION"),
+            scenario: ScenarioInfo {
+                name: s.name.clone(),
+                description: s.description.clone(),
+                file: sc.file.clone(),
+                seed: s.seed,
+                world_digest: sim.world_digest.clone(),
+            },
+            run: RunInfo {
+                start_time_utc: s.start_time_utc.clone(),
+                duration_s: sim.duration_s,
+                distance_m: sim.distance_m,
+                route_completed: sim.route_completed,
+                messages: sim.messages.clone(),
+                late_dropped: sim.stage.late_total(),
+                invalid_dropped: sim
+                    .stage
+                    .invalid
+                    .iter()
+                    .flat_map(|(topic, fields)| {
+                        fields
+                            .iter()
+                            .map(move |(field, n)| (format!("{topic} {field}"), *n))
+                    })
+                    .collect(),
+                fault_windows_s: s.faults.gnss.iter().map(|f| (f.start_s, f.end_s)).collect(),
+            },
+            ground_truth: metrics::closed_loop(&sim.truth).ok(),
+            sources,
+            expectations,
+            passed,
+        }
+    }
+
+    /// The Markdown report.
+    pub fn markdown(&self) -> String {
+        let mut md = String::new();
+        let s = &self.scenario;
+        let held = self.expectations.iter().filter(|x| x.holds).count();
+        let _ = writeln!(md, "# vinebench run: {}\n", s.name);
+        if !s.description.is_empty() {
+            let _ = writeln!(md, "{}\n", s.description);
+        }
+        let verdict = if self.passed { "PASS" } else { "FAIL" };
+        let _ = writeln!(
+            md,
+            "**{verdict}**: {held} of {} expectations hold.\n",
+            self.expectations.len()
+        );
+        let r = &self.run;
+        let _ = writeln!(
+            md,
+            "Scenario `{}`, seed {}, start {}, {:.1} s simulated, {:.1} m driven{}. World digest `{}`.\n",
+            s.file,
+            s.seed,
+            r.start_time_utc,
+            r.duration_s,
+            r.distance_m,
+            if r.route_completed {
+                ""
+            } else {
+                " (route NOT completed)"
+            },
+            &s.world_digest[..s.world_digest.len().min(16)]
+        );
+        if !r.fault_windows_s.is_empty() {
+            let w: Vec<String> = r
+                .fault_windows_s
+                .iter()
+                .map(|(a, b)| format!("{a:.0}–{b:.0} s"))
+                .collect();
+            let _ = writeln!(md, "GNSS fault windows: {}.\n", w.join(", "));
+        }
+
+        let _ = writeln!(md, "## Expectations\n");
+        if self.expectations.is_empty() {
+            let _ = writeln!(md, "None stated.\n");
+        }
+        for x in &self.expectations {
+            let mark = if x.holds { "✅" } else { "❌" };
+            let detail = match (x.lhs, x.margin) {
+                (Some(l), Some(m)) => format!(
+                    "{l:.4} ({} {:.4})",
+                    if m >= 0.0 { "margin" } else { "off by" },
+                    m.abs()
+                ),
+                _ => x.note.clone().unwrap_or_default(),
+            };
+            let _ = writeln!(md, "- {mark} `{}`: {detail}", x.text);
+        }
+
+        let _ = writeln!(
+            md,
+            "\n## Closed-loop discrepancy (Table 1 of Vulpi et al. 2022)\n\n\
+             Start-to-end distance in 3D (D), in the East-North plane (D_EN), in altitude (D_U), \
+             and the standard deviation of the altitude along the path (σ_U).\n\n\
+             | Source | D [m] | D_EN [m] | D_U [m] | σ_U [m] |\n|---|---:|---:|---:|---:|"
+        );
+        if let Some(g) = &self.ground_truth {
+            let _ = writeln!(
+                md,
+                "| ground truth | {:.3} | {:.3} | {:.3} | {:.3} |",
+                g.d_m, g.d_en_m, g.d_u_m, g.sigma_u_m
+            );
+        }
+        for src in &self.sources {
+            let m = |k: &str| fmt_opt(src.score.metric(k), 3);
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} | {} |",
+                src.name,
+                m("d_m"),
+                m("d_en_m"),
+                m("d_u_m"),
+                m("sigma_u_m")
+            );
+        }
+
+        let _ = writeln!(
+            md,
+            "\n## Accuracy against ground truth\n\n\
+             ATE as `evo_ape tum ground_truth.tum estimate_<source>.tum --t_max_diff <tol>` \
+             (translation part; \"aligned\" adds `-a`), RPE as `evo_rpe ... --delta <d> --delta_unit m`.\n\n\
+             | Source | poses | coverage | ATE RMSE [m] | ATE RMSE aligned [m] | ATE max [m] | RPE RMSE [m] | max error in faults [m] |\n\
+             |---|---:|---:|---:|---:|---:|---:|---:|"
+        );
+        for src in &self.sources {
+            let m = |k: &str| fmt_opt(src.score.metric(k), 4);
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} | {} | {} | {} | {} |",
+                src.name,
+                src.poses,
+                fmt_opt(src.score.metric("coverage"), 3),
+                m("ate_rmse_m"),
+                m("ate_rmse_aligned_m"),
+                m("ate_max_m"),
+                m("rpe_rmse_m"),
+                m("outage_max_error_m")
+            );
+        }
+
+        let _ = writeln!(
+            md,
+            "\n## Plots\n\n![Trajectories, top view](trajectories.svg)\n\n\
+             ![Position error over time](errors.svg)\n\n![Altitude over time](altitude.svg)\n"
+        );
+
+        let _ = writeln!(md, "## Inputs\n\n| Topic | messages |\n|---|---:|");
+        for (t, n) in &r.messages {
+            let _ = writeln!(md, "| `{t}` | {n} |");
+        }
+        if r.late_dropped > 0 || !r.invalid_dropped.is_empty() {
+            let _ = writeln!(
+                md,
+                "\nDropped before the estimators: {} late beyond the re-ordering window; invalid: {:?}.",
+                r.late_dropped, r.invalid_dropped
+            );
+        }
+        for src in &self.sources {
+            let _ = writeln!(
+                md,
+                "\n**{}**: used {}; not used {}.",
+                src.name,
+                fmt_counts(&src.used),
+                fmt_counts(&src.rejected)
+            );
+            for n in &src.notes {
+                let _ = writeln!(md, "- {n}");
+            }
+        }
+        let _ = writeln!(
+            md,
+            "\n## Reproduce\n\n```sh\nvinebench run {}\n# cross-check with evo (pip install evo):\n\
+             evo_ape tum ground_truth.tum estimate_eif.tum --t_max_diff <scoring.t_max_diff_s>\n```\n\n\
+             `scenario.resolved.toml` in this folder holds every parameter of this run.",
+            s.file
+        );
+        md
+    }
+}
+
+fn fmt_opt(v: Option<f64>, digits: usize) -> String {
+    match v {
+        Some(x) if x.is_finite() => format!("{x:.digits$}"),
+        _ => "–".to_string(),
+    }
+}
+
+fn fmt_counts(m: &BTreeMap<String, u64>) -> String {
+    if m.is_empty() {
+        return "nothing".to_string();
+    }
+    m.iter()
+        .map(|(k, v)| format!("{v} {k}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Writes `report.json`, `report.md` and the plots into `dir`.
+pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunError> {
+    let io = |p: &Path| {
+        let p = p.display().to_string();
+        move |source| RunError::Io { path: p, source }
+    };
+    let jp = dir.join("report.json");
+    let json =
+        serde_json::to_string_pretty(report).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"));
+    std::fs::write(&jp, json + "\n").map_err(io(&jp))?;
+    let mp = dir.join("report.md");
+    std::fs::write(&mp, report.markdown()).map_err(io(&mp))?;
+
+    let t0 = sim
+        .truth
+        .samples
+        .first()
+        .map(|s| s.stamp)
+        .unwrap_or(Nanos(0));
+    let named: Vec<(&str, &Trajectory)> = sim
+        .estimates
+        .iter()
+        .map(|e| (e.name, &e.trajectory))
+        .collect();
+    let series: Vec<(&str, &[(Nanos, f64)])> = report
+        .sources
+        .iter()
+        .map(|s| (s.name.as_str(), s.score.ate_errors.as_slice()))
+        .collect();
+    // Plots are an aid: a plotting failure is reported in the Markdown, not fatal.
+    let mut notes = Vec::new();
+    if let Err(e) =
+        scoring::plots::plot_trajectories_svg(dir.join("trajectories.svg"), &sim.truth, &named)
+    {
+        notes.push(format!("trajectories.svg: {e}"));
+    }
+    if let Err(e) =
+        scoring::plots::plot_errors_svg(dir.join("errors.svg"), &series, t0, &sim.fault_windows)
+    {
+        notes.push(format!("errors.svg: {e}"));
+    }
+    if let Err(e) =
+        scoring::plots::plot_altitude_svg(dir.join("altitude.svg"), &sim.truth, &named, t0)
+    {
+        notes.push(format!("altitude.svg: {e}"));
+    }
+    if !notes.is_empty() {
+        let mut md = report.markdown();
+        md.push_str("\n## Plot errors\n\n");
+        for n in notes {
+            md.push_str(&format!("- {n}\n"));
+        }
+        std::fs::write(&mp, md).map_err(io(&mp))?;
+    }
+    Ok(())
+}

@@ -1,0 +1,458 @@
+//! The scenario runner: world → motion → sensors → estimators → scoring → run folder.
+//!
+//! [`simulate`] is the pure part (no files): it builds the world, robot, route, motion
+//! model, sensors and estimators from a scenario and steps them in time order. Sensor
+//! messages reach the estimators in *arrival* order (stamp + latency), as on a robot.
+//! [`run`] adds the outputs: the run folder with TUM files, report and plots.
+
+use crate::estimator::{EstimatorError, EstimatorOutput, EstimatorSet, SensorFrames, StageStats};
+use crate::expect::ExpectationResult;
+use crate::report::{self, Report};
+use crate::scenario::{LoadedScenario, ScenarioError};
+use crate::scoring::{self, SourceScore};
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use std::cmp::Reverse;
+use std::collections::{BTreeMap, BinaryHeap};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use thiserror::Error;
+use vinebench_msgs::geodesy::{LocalEnu, normal_gravity};
+use vinebench_msgs::{Nanos, PoseSample, TimedMessage, Trajectory};
+use vinebench_sim::motion::{KinematicSkidSteer, MotionModel};
+use vinebench_sim::robot::{RobotError, RobotModel};
+use vinebench_sim::route::build_route;
+use vinebench_sim::sensors::{SensorContext, SensorModel, build_sensors};
+use vinebench_sim::world::World;
+
+/// A run that could not be carried out.
+#[derive(Debug, Error)]
+pub enum RunError {
+    /// The scenario asks for something impossible (located in the scenario file).
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    /// The robot description is unusable.
+    #[error(transparent)]
+    Robot(#[from] RobotError),
+    /// Writing the run folder failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or folder.
+        path: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RunError + '_ {
+    move |source| RunError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+/// What a simulation produced, before scoring.
+#[derive(Debug)]
+pub struct Simulation {
+    /// Ground truth of the body frame at the scenario's ground-truth rate.
+    pub truth: Trajectory,
+    /// One output per estimator, in the order of `[estimators] run`.
+    pub estimates: Vec<EstimatorOutput>,
+    /// Counters of the estimation stage (late and invalid messages).
+    pub stage: StageStats,
+    /// Messages produced, per topic.
+    pub messages: BTreeMap<String, u64>,
+    /// SHA-256 of the generated world.
+    pub world_digest: String,
+    /// Distance travelled by the robot, m.
+    pub distance_m: f64,
+    /// Simulated duration, s.
+    pub duration_s: f64,
+    /// True when the route was completed (false: stopped by `max_duration_s` or the
+    /// safety limit).
+    pub route_completed: bool,
+    /// Fault windows in absolute time.
+    pub fault_windows: Vec<(Nanos, Nanos)>,
+}
+
+/// A message between its production and its arrival at the estimators, ordered by
+/// arrival time and then production order (deterministic ties).
+struct InFlight {
+    seq: u64,
+    tm: TimedMessage,
+}
+
+impl InFlight {
+    fn key(&self) -> (Nanos, u64) {
+        (self.tm.arrival, self.seq)
+    }
+}
+impl PartialEq for InFlight {
+    fn eq(&self, other: &Self) -> bool {
+        self.key() == other.key()
+    }
+}
+impl Eq for InFlight {}
+impl PartialOrd for InFlight {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for InFlight {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.key().cmp(&other.key())
+    }
+}
+
+/// Options of [`run`].
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// Output folder; `None` = `<runs_root>/<name>-<UTC stamp>/`.
+    pub out_dir: Option<PathBuf>,
+    /// Parent of default output folders.
+    pub runs_root: PathBuf,
+    /// Show a progress bar on stderr (only when it is a terminal).
+    pub progress: bool,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions {
+            out_dir: None,
+            runs_root: PathBuf::from("runs"),
+            progress: true,
+        }
+    }
+}
+
+/// The outcome of [`run`].
+#[derive(Debug)]
+pub struct RunOutcome {
+    /// The run folder.
+    pub dir: PathBuf,
+    /// The report (also written as `report.json` and `report.md`).
+    pub report: Report,
+    /// Wall-clock seconds the simulation took.
+    pub wall_s: f64,
+}
+
+impl RunOutcome {
+    /// True when every expectation holds.
+    pub fn passed(&self) -> bool {
+        self.report.passed
+    }
+}
+
+/// Everything a simulation needs, built and validated from a scenario.
+pub struct Setup {
+    /// The generated vineyard.
+    pub world: World,
+    /// The robot description.
+    pub robot: RobotModel,
+    /// The motion model, at rest at the start of the route.
+    pub motion: KinematicSkidSteer<vinebench_sim::world::Terrain>,
+    /// The enabled sensors.
+    pub sensors: Vec<Box<dyn SensorModel>>,
+    /// The estimation stage.
+    pub estimators: EstimatorSet,
+}
+
+/// Builds the world, robot, route, motion model, sensors and estimators of a scenario;
+/// every parameter problem comes back located in the scenario file.
+pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
+    let s = &sc.scenario;
+    let world = World::generate(s.seed, &s.world).map_err(|e| sc.param_error(e))?;
+    let robot = if s.robot.urdf.is_empty() {
+        RobotModel::builtin(&s.robot.model)
+            .map_err(|e| sc.field_error("robot.model", e.to_string()))?
+    } else {
+        RobotModel::from_urdf_file(&sc.base_dir.join(&s.robot.urdf))?
+    };
+    let route =
+        build_route(&s.route, &world.layout, &s.world.headlands).map_err(|e| sc.param_error(e))?;
+    let motion = KinematicSkidSteer::new(
+        &s.motion,
+        route,
+        world.terrain.clone(),
+        &robot.geometry,
+        sc.start,
+    )
+    .map_err(|e| sc.param_error(e))?;
+    let enu = LocalEnu::new(s.origin);
+    let ctx = SensorContext {
+        master_seed: s.seed,
+        start: sc.start,
+        enu: enu.clone(),
+        gravity_mps2: normal_gravity(s.origin.lat_deg, s.origin.alt_m),
+        static_transforms: robot.static_transforms.clone(),
+        geometry: robot.geometry.clone(),
+    };
+    let sensors = build_sensors(&s.sensors, &s.faults, &ctx).map_err(|e| sc.param_error(e))?;
+    let estimator_error = |e: EstimatorError| match e {
+        EstimatorError::InvalidParam {
+            path,
+            expected,
+            found,
+        } => sc.field_error(&path, format!("expected {expected}, found {found}")),
+        EstimatorError::MissingFrame { frame, estimator } => sc.field_error(
+            "estimators.run",
+            format!(
+                "estimator `{estimator}` needs frame `{frame}`, which {} does not define",
+                robot.source
+            ),
+        ),
+    };
+    let estimators = EstimatorSet::new(&s.estimators, robot.static_transforms.clone(), enu)
+        .map_err(estimator_error)?;
+    estimators
+        .check_sensor_frames(&SensorFrames {
+            imu: &s.sensors.imu.frame,
+            gnss_antenna: &s.sensors.gnss.frame,
+            tracking_camera: &s.sensors.tracking_camera.frame,
+        })
+        .map_err(estimator_error)?;
+    Ok(Setup {
+        world,
+        robot,
+        motion,
+        sensors,
+        estimators,
+    })
+}
+
+/// Checks that a scenario can be set up (world, robot, route, sensors, estimators)
+/// without running it.
+pub fn validate(sc: &LoadedScenario) -> Result<(), RunError> {
+    setup(sc).map(|_| ())
+}
+
+/// Runs the simulation of a scenario (no files written).
+pub fn simulate(
+    sc: &LoadedScenario,
+    progress: Option<&ProgressBar>,
+) -> Result<Simulation, RunError> {
+    let s = &sc.scenario;
+    let Setup {
+        world,
+        mut motion,
+        mut sensors,
+        mut estimators,
+        ..
+    } = setup(sc)?;
+    let start = sc.start;
+
+    // Stop conditions: the route's end, the scenario's hard stop, or a safety limit of
+    // three times the expected duration (a controller that never reaches the end).
+    let expected = motion.expected_duration();
+    let hard_stop = if s.max_duration_s > 0.0 {
+        Some(start + Nanos::from_secs_f64(s.max_duration_s))
+    } else {
+        None
+    };
+    let safety_stop = start + Nanos(expected.0.saturating_mul(3)) + Nanos::from_secs(60);
+    if let Some(pb) = progress {
+        pb.set_length(expected.as_secs_f64().ceil() as u64);
+    }
+
+    let gt_rate = s.scoring.ground_truth_rate_hz;
+    let mut gt_index: i64 = 0;
+    let gt_time = |i: i64| start + Nanos((i as f64 * 1e9 / gt_rate).round() as i64);
+    let mut truth = Trajectory::new();
+    let mut messages: BTreeMap<String, u64> = BTreeMap::new();
+    let mut pending: BinaryHeap<Reverse<InFlight>> = BinaryHeap::new();
+    let mut seq: u64 = 0;
+    let mut out: Vec<TimedMessage> = Vec::new();
+    let mut last_t = start;
+    let mut last_odometer = 0.0;
+    let mut route_completed = false;
+
+    loop {
+        let next_sensor = sensors.iter().map(|x| x.next_time()).min();
+        let t = match next_sensor {
+            Some(ts) => ts.min(gt_time(gt_index)),
+            None => gt_time(gt_index),
+        };
+        if hard_stop.is_some_and(|h| t > h) || t > safety_stop {
+            break;
+        }
+        let state = motion.advance_to(t);
+        last_t = t;
+        last_odometer = state.odometer_m;
+        if t == gt_time(gt_index) {
+            truth.push(PoseSample {
+                stamp: t,
+                world_from_body: state.world_from_body,
+                covariance: None,
+            });
+            gt_index += 1;
+        }
+        for sensor in sensors.iter_mut() {
+            if sensor.next_time() == t {
+                sensor.sample(&state, &mut out);
+            }
+        }
+        for tm in out.drain(..) {
+            *messages.entry(tm.msg.topic().to_string()).or_default() += 1;
+            pending.push(Reverse(InFlight { seq, tm }));
+            seq += 1;
+        }
+        while pending.peek().is_some_and(|p| p.0.tm.arrival <= t) {
+            if let Some(Reverse(p)) = pending.pop() {
+                estimators.push(&p.tm);
+            }
+        }
+        if let Some(pb) = progress {
+            pb.set_position((t - start).as_secs_f64() as u64);
+        }
+        if motion.finished() {
+            route_completed = true;
+            break;
+        }
+    }
+    // Deliver what is still in flight, in arrival order.
+    while let Some(Reverse(p)) = pending.pop() {
+        estimators.push(&p.tm);
+    }
+    let out = estimators.finish();
+    let (estimates, stage) = (out.estimators, out.stage);
+    let fault_windows = s
+        .faults
+        .gnss
+        .iter()
+        .map(|f| {
+            (
+                start + Nanos::from_secs_f64(f.start_s),
+                start + Nanos::from_secs_f64(f.end_s),
+            )
+        })
+        .collect();
+    Ok(Simulation {
+        truth,
+        estimates,
+        stage,
+        messages,
+        world_digest: world.digest(),
+        distance_m: last_odometer,
+        duration_s: (last_t - start).as_secs_f64(),
+        route_completed,
+        fault_windows,
+    })
+}
+
+/// Scores every estimate against the truth (in parallel; each source is independent,
+/// so the result does not depend on the thread count).
+pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Vec<(String, SourceScore)> {
+    sim.estimates
+        .par_iter()
+        .map(|e| {
+            (
+                e.name.to_string(),
+                scoring::score_source(
+                    &sim.truth,
+                    &e.trajectory,
+                    &sc.scenario.scoring,
+                    &sim.fault_windows,
+                ),
+            )
+        })
+        .collect()
+}
+
+/// Evaluates the scenario's expectations on the scores.
+pub fn evaluate(sc: &LoadedScenario, scores: &[(String, SourceScore)]) -> Vec<ExpectationResult> {
+    sc.expectations
+        .iter()
+        .map(|x| {
+            x.evaluate(|metric, source| {
+                scores
+                    .iter()
+                    .find(|(n, _)| n == source)
+                    .and_then(|(_, s)| s.metric(metric))
+            })
+        })
+        .collect()
+}
+
+/// Runs a scenario end to end and writes its run folder.
+pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunError> {
+    let dir = match &opts.out_dir {
+        Some(d) => d.clone(),
+        None => opts
+            .runs_root
+            .join(format!("{}-{}", sc.scenario.name, utc_stamp())),
+    };
+    std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+    let resolved = dir.join("scenario.resolved.toml");
+    std::fs::write(&resolved, sc.resolved_toml()).map_err(io_err(&resolved))?;
+
+    let bar = (opts.progress && std::io::stderr().is_terminal()).then(|| {
+        let pb = ProgressBar::new(1);
+        pb.set_style(
+            ProgressStyle::with_template(
+                "{prefix} [{bar:40.green/dim}] {pos}/{len} s simulated ({per_sec}, eta {eta})",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+        );
+        pb.set_prefix(sc.scenario.name.clone());
+        pb
+    });
+    let t0 = Instant::now();
+    let sim = simulate(sc, bar.as_ref());
+    let wall_s = t0.elapsed().as_secs_f64();
+    if let Some(pb) = &bar {
+        pb.finish_and_clear();
+    }
+    let sim = sim?;
+
+    let gt_path = dir.join("ground_truth.tum");
+    scoring::tum::write_tum(&gt_path, &sim.truth).map_err(io_err(&gt_path))?;
+    for e in &sim.estimates {
+        let p = dir.join(format!("estimate_{}.tum", e.name));
+        scoring::tum::write_tum(&p, &e.trajectory).map_err(io_err(&p))?;
+    }
+    let scores = score(sc, &sim);
+    let expectations = evaluate(sc, &scores);
+    let report = Report::new(sc, &sim, scores, expectations);
+    report::write(&dir, &sim, &report)?;
+    let timing = serde_json::json!({
+        "wall_s": wall_s,
+        "simulated_s": sim.duration_s,
+        "real_time_factor": if wall_s > 0.0 { sim.duration_s / wall_s } else { f64::INFINITY },
+        "threads": rayon::current_num_threads(),
+    });
+    let tp = dir.join("timing.json");
+    std::fs::write(&tp, format!("{timing:#}\n")).map_err(io_err(&tp))?;
+    Ok(RunOutcome {
+        dir,
+        report,
+        wall_s,
+    })
+}
+
+/// `YYYYMMDD-HHMMSS` of the current UTC time (names default run folders).
+fn utc_stamp() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs() as i64)
+        .unwrap_or(0);
+    let days = secs.div_euclid(86_400);
+    let rem = secs.rem_euclid(86_400);
+    // Civil from days (Howard Hinnant).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}{m:02}{d:02}-{:02}{:02}{:02}",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}

@@ -1,0 +1,64 @@
+//! Every shipped scenario runs end to end and meets its own expectations.
+//!
+//! The expectations live in the scenario files (`expect = [...]`); this test makes CI
+//! fail when a change to the simulator or the estimators breaks one of them, with the
+//! failing expectation, its value and its bound in the message.
+
+// Test helpers panic on failure by design.
+#![allow(clippy::unwrap_used)]
+
+use std::path::Path;
+use vinebench::runner::{evaluate, score, simulate};
+use vinebench::scenario::LoadedScenario;
+
+fn check(file: &str) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenarios")
+        .join(file);
+    let sc = LoadedScenario::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    let sim = simulate(&sc, None).unwrap_or_else(|e| panic!("{e}"));
+    assert!(sim.route_completed, "{file}: the route was not completed");
+    let results = evaluate(&sc, &score(&sc, &sim));
+    let failed: Vec<String> = results
+        .iter()
+        .filter(|r| !r.holds)
+        .map(|r| r.to_string())
+        .collect();
+    assert!(failed.is_empty(), "{file}:\n{}", failed.join("\n"));
+}
+
+#[test]
+fn row_loop_rtk_meets_its_expectations() {
+    check("row-loop-rtk.toml");
+}
+
+#[test]
+fn row_loop_rtk_outage_meets_its_expectations() {
+    check("row-loop-rtk-outage.toml");
+}
+
+#[test]
+fn poor_gnss_meets_its_expectations() {
+    check("poor-gnss.toml");
+}
+
+#[test]
+fn the_defaults_run_as_a_scenario() {
+    check("defaults.toml");
+}
+
+#[test]
+fn every_shipped_scenario_states_expectations() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "toml") && !p.ends_with("defaults.toml") {
+            let sc = LoadedScenario::load(&p).unwrap_or_else(|e| panic!("{e}"));
+            assert!(
+                !sc.expectations.is_empty(),
+                "{}: no expectations",
+                p.display()
+            );
+        }
+    }
+}
