@@ -385,6 +385,10 @@ pub struct TrackingCameraParams {
     pub position_random_walk_m_per_rtm: f64,
     /// Position jitter (1σ), m.
     pub jitter_sigma_m: f64,
+    /// Linear velocity noise (1σ per axis), m/s.
+    pub twist_linear_sigma_mps: f64,
+    /// Angular velocity noise (1σ per axis), rad/s.
+    pub twist_angular_sigma_radps: f64,
 }
 default_from_section!(TrackingCameraParams, "sensors.tracking_camera");
 

@@ -307,7 +307,7 @@ fn checked_frame(msg: &Message) -> Option<(&'static str, &str)> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::synthetic::{self, Circle, Motion, Noise, Setup};
+    use super::super::synthetic::{self, Circle, Noise, Setup};
     use super::*;
     use nalgebra::Vector3;
     use vinebench_msgs::FrameId;
@@ -316,17 +316,6 @@ mod tests {
         let mut p = EstimatorsParams::default();
         p.eif.gravity_mps2 = synthetic::GRAVITY;
         p
-    }
-
-    fn max_error(traj: &Trajectory, motion: &dyn Motion) -> (f64, f64) {
-        traj.samples.iter().fold((0.0, 0.0), |(mp, mr), s| {
-            let truth = motion
-                .at((s.stamp - synthetic::T0).as_secs_f64())
-                .world_from_body;
-            let dp = (s.world_from_body.translation.vector - truth.translation.vector).norm();
-            let dr = s.world_from_body.rotation.angle_to(&truth.rotation);
-            (f64::max(mp, dp), f64::max(mr, dr))
-        })
     }
 
     /// Noise-free circle in arrival order (IMU 2 ms, GNSS 60 ms, tracking 5 ms latency:
@@ -413,7 +402,7 @@ mod tests {
                         .all(|c| c.is_finite())
                 );
             }
-            let (mp, mr) = max_error(&e.trajectory, &motion);
+            let (mp, mr) = synthetic::max_error(&e.trajectory, &motion);
             assert!(mp < 1e-4 && mr < 1e-5, "{}: {mp} m {mr} rad", e.name);
         }
         let eif = &out.estimators[0];

@@ -432,7 +432,7 @@ impl Estimator for TrackingCameraOnly {
 
 #[cfg(test)]
 mod tests {
-    use super::super::synthetic::{self, Circle, Line, Motion, Noise, Setup};
+    use super::super::synthetic::{self, Circle, Line, Noise, Setup};
     use super::*;
     use nalgebra::{Matrix3, Vector3};
     use std::f64::consts::FRAC_PI_2;
@@ -546,17 +546,6 @@ mod tests {
         e
     }
 
-    fn max_error(traj: &Trajectory, motion: &dyn Motion) -> (f64, f64) {
-        traj.samples.iter().fold((0.0, 0.0), |(mp, mr), s| {
-            let truth = motion
-                .at((s.stamp - synthetic::T0).as_secs_f64())
-                .world_from_body;
-            let dp = (s.world_from_body.translation.vector - truth.translation.vector).norm();
-            let dr = s.world_from_body.rotation.angle_to(&truth.rotation);
-            (f64::max(mp, dp), f64::max(mr, dr))
-        })
-    }
-
     /// A perfect tracking camera (and perfect GNSS/AHRS for the anchor) reproduces the
     /// truth exactly on a circle; the anchor is the first tracking message, which shares
     /// the first fix's stamp.
@@ -576,7 +565,7 @@ mod tests {
             &msgs,
         );
         assert_eq!(tc.trajectory().len(), 601);
-        let (mp, mr) = max_error(tc.trajectory(), &motion);
+        let (mp, mr) = synthetic::max_error(tc.trajectory(), &motion);
         assert!(mp < 1e-6 && mr < 1e-9, "{mp} {mr}");
         assert!(
             tc.trajectory()
@@ -589,7 +578,7 @@ mod tests {
             &msgs,
         );
         assert_eq!(g.trajectory().len(), 201);
-        let (mp, mr) = max_error(g.trajectory(), &motion);
+        let (mp, mr) = synthetic::max_error(g.trajectory(), &motion);
         assert!(mp < 1e-6 && mr < 1e-9, "{mp} {mr}");
     }
 
@@ -620,7 +609,7 @@ mod tests {
             synthetic::T0 + Nanos((9.0f64 * 1e9 / 29.0).round() as i64)
         );
         assert_eq!(tc.stats().rejected["before_anchor"], 9);
-        let (mp, mr) = max_error(tc.trajectory(), &motion);
+        let (mp, mr) = synthetic::max_error(tc.trajectory(), &motion);
         assert!(mp < 1e-6 && mr < 1e-9, "{mp} {mr}");
     }
 }

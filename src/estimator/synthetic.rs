@@ -370,6 +370,16 @@ pub fn generate(motion: &dyn Motion, setup: &Setup) -> Vec<TimedMessage> {
 }
 
 /// The same messages in stamp order (ties: IMU first, then GNSS, then tracking).
+/// Largest position (m) and rotation (rad) error of a trajectory against `motion`.
+pub fn max_error(traj: &vinebench_msgs::Trajectory, motion: &dyn Motion) -> (f64, f64) {
+    traj.samples.iter().fold((0.0, 0.0), |(mp, mr), s| {
+        let truth = motion.at((s.stamp - T0).as_secs_f64()).world_from_body;
+        let dp = (s.world_from_body.translation.vector - truth.translation.vector).norm();
+        let dr = s.world_from_body.rotation.angle_to(&truth.rotation);
+        (f64::max(mp, dp), f64::max(mr, dr))
+    })
+}
+
 pub fn in_stamp_order(mut msgs: Vec<TimedMessage>) -> Vec<Message> {
     let rank = |m: &Message| match m {
         Message::Imu(_) => 0,

@@ -29,8 +29,7 @@
 //! - the reported pose adds white jitter (σ `jitter_sigma_m` per axis, not integrated).
 //!
 //! **Twist**: the true linear and angular velocity of the camera in its own frame plus
-//! white noise of [`TWIST_LINEAR_SIGMA_MPS`] and [`TWIST_ANGULAR_SIGMA_RADPS`] (named
-//! constants: the scenario file has no key for them).
+//! white noise of `twist_linear_sigma_mps` and `twist_angular_sigma_radps`.
 //!
 //! **Covariances**: position `(σ_pos²·D + σ_jitter²)·I`, rotation
 //! `diag(σ_rp²·D, σ_rp²·D, σ_yaw²·D)` with `D` the distance travelled since the first
@@ -53,10 +52,6 @@ use vinebench_msgs::{FrameId, Message, Nanos, OdometryMsg, TimedMessage};
 
 /// The odometry frame of the tracking camera (its gravity-aligned start frame).
 pub const TRACKING_ODOM_FRAME: &str = "tracking_odom";
-/// White noise on each reported linear velocity component (1σ), m/s.
-pub const TWIST_LINEAR_SIGMA_MPS: f64 = 0.01;
-/// White noise on each reported angular velocity component (1σ), rad/s (≈ 0.3 °/s).
-pub const TWIST_ANGULAR_SIGMA_RADPS: f64 = 0.005;
 
 /// The simulated tracking camera. Random stream `sensors.tracking_camera`.
 #[derive(Clone, Debug)]
@@ -73,6 +68,8 @@ pub struct TrackingCamera {
     roll_pitch_rw: f64,
     yaw_rw: f64,
     jitter_sigma: f64,
+    twist_linear_sigma: f64,
+    twist_angular_sigma: f64,
     state: Option<Track>,
 }
 
@@ -110,6 +107,8 @@ impl TrackingCamera {
             p.position_random_walk_m_per_rtm,
         )?;
         let jitter_sigma = nn("jitter_sigma_m", p.jitter_sigma_m)?;
+        let twist_linear_sigma = nn("twist_linear_sigma_mps", p.twist_linear_sigma_mps)?;
+        let twist_angular_sigma = nn("twist_angular_sigma_radps", p.twist_angular_sigma_radps)?;
         let body_from_cam = mount(ctx, "tracking_camera", &p.frame)?;
 
         let mut rng = rng::stream(ctx.master_seed, "sensors.tracking_camera");
@@ -132,6 +131,8 @@ impl TrackingCamera {
             roll_pitch_rw,
             yaw_rw,
             jitter_sigma,
+            twist_linear_sigma,
+            twist_angular_sigma,
             state: None,
         })
     }
@@ -188,8 +189,8 @@ impl SensorModel for TrackingCamera {
         let n_pos = standard_normal3(&mut self.rng);
         let n_rot = standard_normal3(&mut self.rng);
         let jitter = white3(&mut self.rng, &Vector3::repeat(self.jitter_sigma));
-        let n_lin = white3(&mut self.rng, &Vector3::repeat(TWIST_LINEAR_SIGMA_MPS));
-        let n_ang = white3(&mut self.rng, &Vector3::repeat(TWIST_ANGULAR_SIGMA_RADPS));
+        let n_lin = white3(&mut self.rng, &Vector3::repeat(self.twist_linear_sigma));
+        let n_ang = white3(&mut self.rng, &Vector3::repeat(self.twist_angular_sigma));
 
         let track = match self.state.take() {
             None => {
@@ -233,8 +234,8 @@ impl SensorModel for TrackingCamera {
         let pose_covariance = Matrix6::from_diagonal(&Vector6::new(
             pos_var, pos_var, pos_var, rp_var, rp_var, yaw_var,
         ));
-        let lin_var = TWIST_LINEAR_SIGMA_MPS.powi(2);
-        let ang_var = TWIST_ANGULAR_SIGMA_RADPS.powi(2);
+        let lin_var = self.twist_linear_sigma.powi(2);
+        let ang_var = self.twist_angular_sigma.powi(2);
         let twist_covariance = Matrix6::from_diagonal(&Vector6::new(
             lin_var, lin_var, lin_var, ang_var, ang_var, ang_var,
         ));
@@ -523,7 +524,12 @@ mod tests {
             let expected = Vector3::new(speed - w * r.y, w * r.x, 0.0);
             assert!((m.linear_velocity - expected).amax() < 0.1);
             assert!((m.angular_velocity - Vector3::new(0.0, 0.0, w)).amax() < 0.05);
-            assert_eq!(m.twist_covariance[(0, 0)], TWIST_LINEAR_SIGMA_MPS.powi(2));
+            assert_eq!(
+                m.twist_covariance[(0, 0)],
+                TrackingCameraParams::default()
+                    .twist_linear_sigma_mps
+                    .powi(2)
+            );
         }
     }
 }
