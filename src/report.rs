@@ -7,7 +7,7 @@
 use crate::expect::ExpectationResult;
 use crate::runner::{RunError, Simulation};
 use crate::scenario::LoadedScenario;
-use crate::scoring::{self, SourceScore, metrics};
+use crate::scoring::{self, ScoringParams, SourceScore, metrics};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -23,6 +23,8 @@ pub struct Report {
     pub scenario: ScenarioInfo,
     /// What was simulated.
     pub run: RunInfo,
+    /// How the metrics were computed.
+    pub scoring: ScoringParams,
     /// Closed-loop metrics of the ground truth itself (reference for Table 1; absent for
     /// a trajectory too short to have them).
     pub ground_truth: Option<metrics::LoopMetrics>,
@@ -142,6 +144,7 @@ impl Report {
                     .collect(),
                 fault_windows_s: s.faults.gnss.iter().map(|f| (f.start_s, f.end_s)).collect(),
             },
+            scoring: s.scoring.clone(),
             ground_truth: metrics::closed_loop(&sim.truth).ok(),
             sources,
             expectations,
@@ -288,10 +291,18 @@ impl Report {
         }
         let _ = writeln!(
             md,
-            "\n## Reproduce\n\n```sh\nvinebench run {}\n# cross-check with evo (pip install evo):\n\
-             evo_ape tum ground_truth.tum estimate_eif.tum --t_max_diff <scoring.t_max_diff_s>\n```\n\n\
-             `scenario.resolved.toml` in this folder holds every parameter of this run.",
-            s.file
+            "\n## Reproduce\n\n```sh\nvinebench run {file}\n# the same numbers with evo (pip install evo):\n\
+             evo_ape tum ground_truth.tum estimate_eif.tum --t_max_diff {t} [-a]\n\
+             evo_rpe tum ground_truth.tum estimate_eif.tum --t_max_diff {t} --delta {d} --delta_unit m{pairs}\n```\n\n\
+             `scenario.resolved.toml` in this folder holds every parameter of this run.\n",
+            file = s.file,
+            t = self.scoring.t_max_diff_s,
+            d = self.scoring.rpe_delta_m,
+            pairs = if self.scoring.rpe_pairs_from_reference {
+                " --pairs_from_reference"
+            } else {
+                ""
+            },
         );
         md
     }

@@ -232,6 +232,15 @@ pub fn simulate(
     sc: &LoadedScenario,
     progress: Option<&ProgressBar>,
 ) -> Result<Simulation, RunError> {
+    simulate_setup(sc, setup(sc)?, progress)
+}
+
+/// Runs the simulation of a scenario that [`setup`] has already built.
+pub fn simulate_setup(
+    sc: &LoadedScenario,
+    built: Setup,
+    progress: Option<&ProgressBar>,
+) -> Result<Simulation, RunError> {
     let s = &sc.scenario;
     let Setup {
         world,
@@ -239,7 +248,7 @@ pub fn simulate(
         mut sensors,
         mut estimators,
         ..
-    } = setup(sc)?;
+    } = built;
     let start = sc.start;
 
     // Stop conditions: the route's end, the scenario's hard stop, or a safety limit of
@@ -376,6 +385,8 @@ pub fn evaluate(sc: &LoadedScenario, scores: &[(String, SourceScore)]) -> Vec<Ex
 
 /// Runs a scenario end to end and writes its run folder.
 pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunError> {
+    // Every parameter is checked before anything is written.
+    let built = setup(sc)?;
     let dir = match &opts.out_dir {
         Some(d) => d.clone(),
         None => opts
@@ -399,7 +410,7 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
         pb
     });
     let t0 = Instant::now();
-    let sim = simulate(sc, bar.as_ref());
+    let sim = simulate_setup(sc, built, bar.as_ref());
     let wall_s = t0.elapsed().as_secs_f64();
     if let Some(pb) = &bar {
         pb.finish_and_clear();
