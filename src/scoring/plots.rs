@@ -86,6 +86,21 @@ where
         .map_err(draw_err)
 }
 
+/// Ground truth (black) followed by every source with its colour.
+fn with_truth<'a>(
+    truth: &'a Trajectory,
+    sources: &[(&'a str, &'a Trajectory)],
+) -> Vec<(&'a str, &'a Trajectory, RGBColor)> {
+    std::iter::once(("ground truth", truth, TRUTH_COLOUR))
+        .chain(
+            sources
+                .iter()
+                .enumerate()
+                .map(|(i, &(name, t))| (name, t, source_colour(i))),
+        )
+        .collect()
+}
+
 /// Colour of the `i`-th source.
 fn source_colour(i: usize) -> RGBColor {
     SOURCE_COLOURS[i % SOURCE_COLOURS.len()]
@@ -199,15 +214,7 @@ pub fn trajectories_svg(
     sources: &[(&str, &Trajectory)],
 ) -> Result<String, PlotError> {
     let caption = "Top view (ENU)";
-    let all: Vec<(&str, &Trajectory, RGBColor)> =
-        std::iter::once(("ground truth", truth, TRUTH_COLOUR))
-            .chain(
-                sources
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &(name, t))| (name, t, source_colour(i))),
-            )
-            .collect();
+    let all = with_truth(truth, sources);
     let xr = padded_range(all.iter().flat_map(|(_, t, _)| t.positions().map(|p| p.x)));
     let yr = padded_range(all.iter().flat_map(|(_, t, _)| t.positions().map(|p| p.y)));
     let ((x0, x1), (y0, y1)) = equal_scale(xr, yr, plotting_area_px(caption)?);
@@ -328,15 +335,7 @@ pub fn altitude_svg(
     sources: &[(&str, &Trajectory)],
     t0: Nanos,
 ) -> Result<String, PlotError> {
-    let all: Vec<(&str, &Trajectory, RGBColor)> =
-        std::iter::once(("ground truth", truth, TRUTH_COLOUR))
-            .chain(
-                sources
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &(name, t))| (name, t, source_colour(i))),
-            )
-            .collect();
+    let all = with_truth(truth, sources);
     let (tx0, tx1) = padded_range(
         all.iter()
             .flat_map(|(_, t, _)| t.stamps().map(|s| secs_since(s, t0))),
