@@ -5,7 +5,7 @@
 //! reports.
 
 use crate::expect::ExpectationResult;
-use crate::runner::{RunError, Simulation};
+use crate::runner::{RunError, Simulation, io_err};
 use crate::scenario::LoadedScenario;
 use crate::scoring::{self, ScoringParams, SourceScore, metrics};
 use serde::Serialize;
@@ -327,16 +327,10 @@ fn fmt_counts(m: &BTreeMap<String, u64>) -> String {
 
 /// Writes `report.json`, `report.md` and the plots into `dir`.
 pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunError> {
-    let io = |p: &Path| {
-        let p = p.display().to_string();
-        move |source| RunError::Io { path: p, source }
-    };
     let jp = dir.join("report.json");
     let json =
         serde_json::to_string_pretty(report).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"));
-    std::fs::write(&jp, json + "\n").map_err(io(&jp))?;
-    let mp = dir.join("report.md");
-    std::fs::write(&mp, report.markdown()).map_err(io(&mp))?;
+    std::fs::write(&jp, json + "\n").map_err(io_err(&jp))?;
 
     let t0 = sim
         .truth
@@ -371,13 +365,13 @@ pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunErr
     {
         notes.push(format!("altitude.svg: {e}"));
     }
+    let mut md = report.markdown();
     if !notes.is_empty() {
-        let mut md = report.markdown();
         md.push_str("\n## Plot errors\n\n");
         for n in notes {
             md.push_str(&format!("- {n}\n"));
         }
-        std::fs::write(&mp, md).map_err(io(&mp))?;
     }
-    Ok(())
+    let mp = dir.join("report.md");
+    std::fs::write(&mp, md).map_err(io_err(&mp))
 }

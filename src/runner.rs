@@ -45,7 +45,8 @@ pub enum RunError {
     },
 }
 
-fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RunError + '_ {
+/// Maps an I/O error on `path` to [`RunError::Io`] naming the file.
+pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RunError + '_ {
     move |source| RunError::Io {
         path: path.display().to_string(),
         source,
