@@ -4,8 +4,11 @@
 //!   block-structured covariance propagation with the tracking-camera clone active) on
 //!   deterministic synthetic IMU samples, one core.
 //! - Whole-simulation real-time factor: the default scenario (a closed loop around a
-//!   120 m row, no cameras) simulated, estimated and scored, without writing files; and
-//!   the same with no estimator, to separate simulation from estimation cost.
+//!   120 m row, no cameras, rapier3d physics) simulated, estimated and scored, without
+//!   writing files; and the same with no estimator (physics and the IMU, GNSS,
+//!   tracking-camera and odometry sensors), to separate simulation from estimation cost.
+//! - Physics step cost of each built-in robot on the default vineyard's terrain (rapier3d
+//!   rigid body, ground-contact model, motors), driving forward.
 //!
 //! The criterion benches (`cargo bench`) measure the same things with statistics;
 //! this command gives a quick table on any machine.
@@ -31,6 +34,9 @@ pub enum BenchError {
     /// The simulation failed.
     #[error(transparent)]
     Run(#[from] RunError),
+    /// A benchmark's world or robot could not be built (a bug).
+    #[error("benchmark setup: {0}")]
+    Setup(String),
 }
 
 /// Deterministic IMU samples `(specific force, angular rate)` in the IMU frame of a
@@ -118,6 +124,69 @@ pub fn row_loop_real_time_factor(estimators: bool, repeats: usize) -> Result<f64
     Ok(simulated / best)
 }
 
+/// The built-in robot `robot` at rest in lane 2 of the default vineyard (terrain, posts
+/// and trunks), 1 kHz steps, with the joint speeds that drive it forward at 0.8 m/s.
+pub fn physics_bench_setup(
+    robot: &str,
+) -> Result<
+    (
+        vinebench_sim::physics::RapierPhysics<vinebench_sim::world::Terrain>,
+        [f64; vinebench_sim::robot::MAX_DRIVE_JOINTS],
+    ),
+    BenchError,
+> {
+    use vinebench_sim::motion::dynamic::{standing_pose, static_sinkage_m};
+    use vinebench_sim::params::{PhysicsParams, WorldParams};
+    use vinebench_sim::physics::rapier::{HeightGrid, obstacles_of};
+    use vinebench_sim::physics::{RapierPhysics, Scene};
+    use vinebench_sim::robot::RobotModel;
+    use vinebench_sim::world::World;
+    let invalid = |e: String| BenchError::Setup(e);
+    let world = World::generate(1, &WorldParams::default()).map_err(|e| invalid(e.to_string()))?;
+    let r = RobotModel::builtin(robot).map_err(|e| invalid(e.to_string()))?;
+    let params = PhysicsParams::default();
+    let (lo, hi) = world.terrain.domain();
+    let grid = HeightGrid::sample(&world.terrain, lo, hi, params.heightfield_cell_m);
+    let obstacles = obstacles_of(&world);
+    // In lane 2, heading along the rows.
+    let start = world.layout.point(world.layout.lane_offset_m(2), 2.0);
+    let yaw = start.1.y.atan2(start.1.x);
+    let gravity = 9.80;
+    let pose = standing_pose(
+        &world.terrain,
+        start.0,
+        yaw,
+        r.geometry.ride_height_m - static_sinkage_m(&r, gravity),
+    );
+    let refs = r.drive.kinematics().joint_speeds(0.8, 0.0, 0.0);
+    let scene = Scene {
+        surface: world.terrain.clone(),
+        obstacles: &obstacles,
+        ground: Some(&grid),
+    };
+    let p = RapierPhysics::new(&r, scene, &params, 1000.0, gravity, &pose)
+        .map_err(|e| invalid(e.to_string()))?;
+    Ok((p, refs))
+}
+
+/// Microseconds per physics step of the built-in robot `robot` driving forward on the
+/// default vineyard's terrain among its posts and trunks (best of `repeats` runs of
+/// `steps` steps at 1 kHz, after [`physics_bench_setup`]).
+pub fn physics_step_micros(robot: &str, steps: usize, repeats: usize) -> Result<f64, BenchError> {
+    use vinebench_sim::physics::Physics;
+    let mut best = f64::INFINITY;
+    for _ in 0..repeats.max(1) {
+        let (mut p, refs) = physics_bench_setup(robot)?;
+        let t0 = Instant::now();
+        for _ in 0..steps {
+            p.step(black_box(&refs));
+        }
+        black_box(p.body());
+        best = best.min(t0.elapsed().as_secs_f64());
+    }
+    Ok(best / steps as f64 * 1e6)
+}
+
 /// Runs every figure.
 pub fn run_all(quick: bool) -> Result<Vec<Figure>, BenchError> {
     let (steps, repeats) = if quick { (200_000, 2) } else { (2_000_000, 5) };
@@ -135,9 +204,21 @@ pub fn run_all(quick: bool) -> Result<Vec<Figure>, BenchError> {
             target: Some(100.0),
         },
         Figure {
-            name: "120 m row loop, simulation and sensors only, real-time factor",
+            name: "120 m row loop, physics + IMU/GNSS/tracking camera/odometry sensors only, real-time factor",
             value: row_loop_real_time_factor(false, repeats.min(3))?,
             unit: "x",
+            target: Some(50.0),
+        },
+        Figure {
+            name: "physics step, tracked-sensorbox (rapier3d, 16 track probes, 2 motors)",
+            value: physics_step_micros("tracked-sensorbox", steps / 20, repeats)?,
+            unit: "us",
+            target: None,
+        },
+        Figure {
+            name: "physics step, mecanum-rover (rapier3d, 4 wheel probes, 4 motors)",
+            value: physics_step_micros("mecanum-rover", steps / 20, repeats)?,
+            unit: "us",
             target: None,
         },
     ])

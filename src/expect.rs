@@ -7,7 +7,13 @@
 //! ate_rmse_m.eif <= 0.3
 //! sigma_u_m.eif < sigma_u_m.gnss
 //! d_m.tracking_camera > 2 * d_m.eif
+//! collisions.robot <= 0
+//! max_cross_track_m.robot < 0.2
 //! ```
+//!
+//! Sources are the estimators the scenario runs (`[estimators] run`), with the metrics of
+//! [`METRICS`], and the pseudo-source [`ROBOT_SOURCE`] (`robot`): the robot's own run
+//! from ground truth, always available, with the metrics of [`ROBOT_METRICS`].
 //!
 //! ```
 //! use vinebench::expect::Expectation;
@@ -70,6 +76,34 @@ pub const METRICS: &[(&str, &str)] = &[
     ),
 ];
 
+/// The pseudo-source of the robot's own run (ground truth against its route).
+pub const ROBOT_SOURCE: &str = "robot";
+
+/// Metric names of the pseudo-source [`ROBOT_SOURCE`] (see `scenarios/defaults.toml`).
+pub const ROBOT_METRICS: &[(&str, &str)] = &[
+    (
+        "collisions",
+        "contacts with trellis posts, vine trunks or the ground (the chassis bottoming out) begun during the run (count)",
+    ),
+    (
+        "route_completed",
+        "1 when the robot completed its route, 0 when it got stuck or a time limit stopped it",
+    ),
+    (
+        "max_cross_track_m",
+        "largest horizontal distance of the body origin from the route (m)",
+    ),
+    (
+        "max_heading_error_deg",
+        "largest heading error against the route's heading policy while moving faster than 5 cm/s (degrees)",
+    ),
+    (
+        "max_tilt_deg",
+        "largest angle between the body z axis and the vertical (degrees)",
+    ),
+    ("distance_m", "distance travelled by the body origin (m)"),
+];
+
 /// A comparison operator.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize)]
 pub enum Op {
@@ -97,10 +131,18 @@ impl Op {
 /// `metric.source`.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]
 pub struct MetricRef {
-    /// Metric name (one of [`METRICS`]).
+    /// Metric name (one of [`METRICS`] for an estimate source, of [`ROBOT_METRICS`] for
+    /// `robot`).
     pub metric: String,
-    /// Source name (`eif`, `gnss`, `tracking_camera`).
+    /// Source name (`eif`, `gnss`, `tracking_camera`, or [`ROBOT_SOURCE`]).
     pub source: String,
+}
+
+impl MetricRef {
+    /// True for a metric of the robot's own run ([`ROBOT_SOURCE`]).
+    pub fn is_robot(&self) -> bool {
+        self.source == ROBOT_SOURCE
+    }
 }
 
 impl fmt::Display for MetricRef {
@@ -181,7 +223,8 @@ impl fmt::Display for ExpectationResult {
 }
 
 impl Expectation {
-    /// Parses `text`; `sources` are the sources the scenario runs.
+    /// Parses `text`; `sources` are the estimate sources the scenario runs
+    /// ([`ROBOT_SOURCE`] is always valid and need not be listed).
     pub fn parse(text: &str, sources: &[&str]) -> Result<Expectation, ExpectationError> {
         let t = text.trim();
         let ops = [("<=", Op::Le), (">=", Op::Ge), ("<", Op::Lt), (">", Op::Gt)];
@@ -274,23 +317,56 @@ impl Expectation {
     }
 }
 
+fn names(list: &[(&str, &str)]) -> String {
+    list.iter().map(|m| m.0).collect::<Vec<_>>().join(", ")
+}
+
+/// Which metrics each kind of source has, for error messages.
+fn metrics_by_kind(sources: &[&str]) -> String {
+    format!(
+        "estimate sources ({}) have: {}; `{ROBOT_SOURCE}` (the robot's own run) has: {}",
+        sources.join(", "),
+        names(METRICS),
+        names(ROBOT_METRICS)
+    )
+}
+
 fn parse_ref(s: &str, sources: &[&str]) -> Result<MetricRef, ExpectationError> {
     let (metric, source) = s.split_once('.').ok_or_else(|| {
         ExpectationError(format!(
-            "expected `<metric>.<source>` such as `ate_rmse_m.eif`, found {s:?}"
+            "expected `<metric>.<source>` such as `ate_rmse_m.eif` or `collisions.robot`, found {s:?}"
         ))
     })?;
-    if !METRICS.iter().any(|(m, _)| *m == metric) {
+    let estimate_metric = METRICS.iter().any(|(m, _)| *m == metric);
+    let robot_metric = ROBOT_METRICS.iter().any(|(m, _)| *m == metric);
+    if !estimate_metric && !robot_metric {
         return Err(ExpectationError(format!(
-            "unknown metric `{metric}`; metrics are: {}",
-            METRICS.iter().map(|m| m.0).collect::<Vec<_>>().join(", ")
+            "unknown metric `{metric}`; {}",
+            metrics_by_kind(sources)
         )));
     }
-    if !sources.contains(&source) {
-        return Err(ExpectationError(format!(
-            "unknown source `{source}`; this scenario runs: {} (set [estimators] run)",
-            sources.join(", ")
-        )));
+    if source == ROBOT_SOURCE {
+        if !robot_metric {
+            return Err(ExpectationError(format!(
+                "`{metric}` is a metric of estimate sources, not of `{ROBOT_SOURCE}`; {}",
+                metrics_by_kind(sources)
+            )));
+        }
+    } else {
+        if !sources.contains(&source) {
+            return Err(ExpectationError(format!(
+                "unknown source `{source}`; this scenario runs: {} (set [estimators] run), and \
+                 `{ROBOT_SOURCE}` (the robot's own run) is always available",
+                sources.join(", ")
+            )));
+        }
+        if !estimate_metric {
+            return Err(ExpectationError(format!(
+                "`{metric}` is a metric of `{ROBOT_SOURCE}` (write `{metric}.{ROBOT_SOURCE}`), \
+                 not of the estimate source `{source}`; {}",
+                metrics_by_kind(sources)
+            )));
+        }
     }
     Ok(MetricRef {
         metric: metric.to_string(),
@@ -321,6 +397,139 @@ mod tests {
         ours.sort_unstable();
         scoring.sort_unstable();
         assert_eq!(ours, scoring);
+    }
+
+    /// A robot section with distinct values per metric and `collisions` post contacts.
+    fn robot(collisions: usize, completed: bool) -> crate::report::RobotReport {
+        use crate::report::{RobotOutcome, RobotReport};
+        use vinebench_sim::motion::RobotMetrics;
+        use vinebench_sim::physics::{CollisionEvent, Obstacle};
+        RobotReport {
+            outcome: if completed {
+                RobotOutcome::Completed { at_s: 40.0 }
+            } else {
+                RobotOutcome::Stuck {
+                    at_s: 20.0,
+                    progress_m: 9.0,
+                }
+            },
+            route_completed: completed,
+            metrics: RobotMetrics {
+                max_cross_track_m: 0.12,
+                max_heading_error_deg: 3.5,
+                max_tilt_deg: 6.25,
+                distance_m: 41.5,
+                progress_m: 40.0,
+                route_length_m: 40.0,
+                cusps_passed: 0,
+                samples: 8000,
+            },
+            collisions: (0..collisions)
+                .map(|i| CollisionEvent {
+                    time_s: 10.0 + i as f64,
+                    link: "base_link".into(),
+                    obstacle: Obstacle::Post { row: 0, index: i },
+                    robot_position_m: [5.5, 0.0, 0.2],
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn every_robot_metric_has_a_value_in_the_robot_report() {
+        let r = robot(2, true);
+        let want = [
+            ("collisions", 2.0),
+            ("route_completed", 1.0),
+            ("max_cross_track_m", 0.12),
+            ("max_heading_error_deg", 3.5),
+            ("max_tilt_deg", 6.25),
+            ("distance_m", 41.5),
+        ];
+        let mut names: Vec<&str> = ROBOT_METRICS.iter().map(|m| m.0).collect();
+        let mut wanted: Vec<&str> = want.iter().map(|w| w.0).collect();
+        names.sort_unstable();
+        wanted.sort_unstable();
+        assert_eq!(names, wanted);
+        for (name, v) in want {
+            assert_eq!(r.metric(name), Some(v), "{name}");
+        }
+        assert_eq!(robot(0, false).metric("route_completed"), Some(0.0));
+        assert_eq!(r.metric("ate_rmse_m"), None);
+        // No name is both a robot and an estimate metric.
+        for (m, _) in ROBOT_METRICS {
+            assert!(!METRICS.iter().any(|(e, _)| e == m), "{m}");
+        }
+    }
+
+    #[test]
+    fn robot_is_always_a_source_with_its_own_metrics() {
+        for sources in [SRC, &["gnss"][..], &[][..]] {
+            let x = Expectation::parse("collisions.robot <= 0", sources).unwrap();
+            assert!(x.lhs.is_robot());
+            assert_eq!(x.lhs.metric, "collisions");
+        }
+        let x = Expectation::parse("distance_m.robot > 100 * ate_rmse_m.eif", SRC).unwrap();
+        assert!(x.lhs.is_robot());
+        let Rhs::Metric { factor, metric } = &x.rhs else {
+            panic!("{x:?}")
+        };
+        assert_eq!((*factor, metric.is_robot()), (100.0, false));
+
+        // A robot metric on an estimate source, an estimate metric on `robot`: the error
+        // says which metrics each kind of source has.
+        let e = |t| Expectation::parse(t, SRC).unwrap_err().0;
+        for msg in [
+            e("max_tilt_deg.eif < 5"),
+            e("ate_rmse_m.robot < 1"),
+            e("tilt.robot < 5"),
+        ] {
+            assert!(
+                msg.contains("estimate sources (eif, gnss, tracking_camera) have: ate_rmse_m,"),
+                "{msg}"
+            );
+            assert!(
+                msg.contains("`robot` (the robot's own run) has: collisions, route_completed,"),
+                "{msg}"
+            );
+        }
+        assert!(e("max_tilt_deg.eif < 5").contains("write `max_tilt_deg.robot`"));
+        assert!(e("ate_rmse_m.robot < 1").contains("not of `robot`"));
+        assert!(e("tilt.robot < 5").contains("unknown metric `tilt`"));
+        // On the right-hand side too.
+        assert!(e("collisions.robot <= d_m.robot").contains("not of `robot`"));
+        // Unknown sources mention `robot`.
+        assert!(e("collisions.robots <= 0").contains("`robot` (the robot's own run) is always"));
+    }
+
+    #[test]
+    fn robot_expectations_evaluate_on_the_robot_report() {
+        let eval = |text: &str, r: &crate::report::RobotReport| {
+            Expectation::parse(text, SRC)
+                .unwrap()
+                .evaluate(|m, s| match s {
+                    ROBOT_SOURCE => r.metric(m),
+                    "eif" if m == "ate_rmse_m" => Some(0.05),
+                    _ => None,
+                })
+        };
+        let (ok, bad) = (robot(0, true), robot(3, false));
+        let r = eval("collisions.robot <= 0", &ok);
+        assert!(r.holds && r.margin == Some(0.0), "{r:?}");
+        let r = eval("collisions.robot <= 0", &bad);
+        assert!(
+            !r.holds && r.lhs == Some(3.0) && r.margin == Some(-3.0),
+            "{r:?}"
+        );
+        assert!(eval("route_completed.robot >= 1", &ok).holds);
+        assert!(!eval("route_completed.robot >= 1", &bad).holds);
+        let r = eval("max_cross_track_m.robot < 0.2", &ok);
+        assert!(r.holds && (r.margin.unwrap() - 0.08).abs() < 1e-12, "{r:?}");
+        assert!(!eval("max_tilt_deg.robot < 6", &ok).holds);
+        assert!(eval("max_heading_error_deg.robot <= 3.5", &ok).holds);
+        // 41.5 > 100 * 0.05.
+        let r = eval("distance_m.robot > 100 * ate_rmse_m.eif", &ok);
+        assert!(r.holds && (r.margin.unwrap() - 36.5).abs() < 1e-12, "{r:?}");
     }
 
     #[test]

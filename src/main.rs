@@ -199,7 +199,12 @@ fn dispatch(cmd: Command) -> Result<u8> {
                     .target
                     .map(|t| format!(">= {t:.0} {}", f.unit))
                     .unwrap_or_default();
-                println!("| {} | {:.0} {} | {target} |", f.name, f.value, f.unit);
+                // Three significant digits.
+                let digits = (2 - f.value.abs().max(1e-12).log10().floor() as i32).max(0) as usize;
+                println!(
+                    "| {} | {:.*} {} | {target} |",
+                    f.name, digits, f.value, f.unit
+                );
             }
             println!(
                 "\n{} threads available; vinebench {} ({} build)",
@@ -256,6 +261,16 @@ fn print_summary(o: &runner::RunOutcome) {
             m("ate_rmse_aligned_m")
         );
     }
+    let robot = &r.robot;
+    println!(
+        "{:<16} {}; {} collision(s); max cross-track {:.3} m, heading error {:.1}°, tilt {:.1}°",
+        "robot",
+        robot.outcome,
+        robot.collisions.len(),
+        robot.metrics.max_cross_track_m,
+        robot.metrics.max_heading_error_deg,
+        robot.metrics.max_tilt_deg
+    );
     for x in &r.expectations {
         println!("{x}");
     }

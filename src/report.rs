@@ -4,15 +4,20 @@
 //! timing goes to `timing.json` instead, so two runs of a scenario give byte-identical
 //! reports.
 
-use crate::expect::ExpectationResult;
-use crate::runner::{RunError, Simulation, io_err};
+use crate::expect::{ExpectationResult, ROBOT_METRICS};
+use crate::runner::{RunError, Scores, Simulation, TimeLimit, io_err};
 use crate::scenario::LoadedScenario;
 use crate::scoring::{self, ScoringParams, SourceScore, metrics};
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::fmt::Write as _;
+use std::fmt::{self, Write as _};
 use std::path::Path;
 use vinebench_msgs::{Nanos, Trajectory};
+use vinebench_sim::motion::{MotionOutcome, RobotMetrics};
+use vinebench_sim::physics::{CollisionEvent, Obstacle};
+
+/// Collisions listed in `report.md` (all of them are in `report.json`).
+pub const MAX_COLLISION_ROWS: usize = 50;
 
 /// The report of one run.
 #[derive(Clone, Debug, Serialize)]
@@ -28,6 +33,8 @@ pub struct Report {
     /// Closed-loop metrics of the ground truth itself (reference for Table 1; absent for
     /// a trajectory too short to have them).
     pub ground_truth: Option<metrics::LoopMetrics>,
+    /// The robot's own run (the expectations' pseudo-source `robot`).
+    pub robot: RobotReport,
     /// One entry per estimator, in the order of `[estimators] run`.
     pub sources: Vec<SourceReport>,
     /// Expectation outcomes, in file order.
@@ -73,6 +80,168 @@ pub struct RunInfo {
     pub fault_windows_s: Vec<(f64, f64)>,
 }
 
+/// How the robot's run ended.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum RobotOutcome {
+    /// The route was completed (and the final stand-still held).
+    Completed {
+        /// End of the run, s after the start.
+        at_s: f64,
+    },
+    /// The robot made no progress along its route for `physics.stuck_timeout_s` while it
+    /// should have been driving.
+    Stuck {
+        /// When the run gave up, s after the start.
+        at_s: f64,
+        /// Arc length reached along the route, m.
+        progress_m: f64,
+    },
+    /// The scenario's `max_duration_s` ended the run before the route was completed.
+    MaxDuration {
+        /// End of the run, s after the start.
+        at_s: f64,
+        /// Arc length reached along the route, m.
+        progress_m: f64,
+    },
+    /// The safety limit (three times the expected duration plus 60 s) ended the run
+    /// before the route was completed.
+    SafetyLimit {
+        /// End of the run, s after the start.
+        at_s: f64,
+        /// Arc length reached along the route, m.
+        progress_m: f64,
+    },
+}
+
+impl fmt::Display for RobotOutcome {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            RobotOutcome::Completed { at_s } => write!(f, "completed at {at_s:.1} s"),
+            RobotOutcome::Stuck { at_s, progress_m } => {
+                write!(f, "stuck at {at_s:.1} s after {progress_m:.1} m")
+            }
+            RobotOutcome::MaxDuration { at_s, progress_m } => write!(
+                f,
+                "stopped by max_duration_s at {at_s:.1} s after {progress_m:.1} m"
+            ),
+            RobotOutcome::SafetyLimit { at_s, progress_m } => write!(
+                f,
+                "stopped by the safety limit at {at_s:.1} s after {progress_m:.1} m"
+            ),
+        }
+    }
+}
+
+/// The robot's own run: how it ended, what it hit and how closely it followed its route,
+/// all from ground truth. Answers the expectations' pseudo-source `robot`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RobotReport {
+    /// How the run ended.
+    pub outcome: RobotOutcome,
+    /// Whether the route was completed.
+    pub route_completed: bool,
+    /// Truth-only metrics against the route
+    /// ([`vinebench_sim::motion::tracking`] defines them).
+    pub metrics: RobotMetrics,
+    /// Contacts with posts, trunks or the ground (chassis), in time order.
+    pub collisions: Vec<CollisionEvent>,
+}
+
+impl RobotReport {
+    /// The robot section of a simulation.
+    pub fn new(sim: &Simulation) -> RobotReport {
+        let at_s = sim.duration_s;
+        let progress_m = sim.robot.progress_m;
+        let outcome = match &sim.outcome {
+            MotionOutcome::Completed => RobotOutcome::Completed { at_s },
+            MotionOutcome::Stuck { at_s, progress_m } => RobotOutcome::Stuck {
+                at_s: *at_s,
+                progress_m: *progress_m,
+            },
+            MotionOutcome::Running => match sim.stopped_by {
+                Some(TimeLimit::MaxDuration) => RobotOutcome::MaxDuration { at_s, progress_m },
+                Some(TimeLimit::Safety) | None => RobotOutcome::SafetyLimit { at_s, progress_m },
+            },
+        };
+        RobotReport {
+            outcome,
+            route_completed: sim.route_completed,
+            metrics: sim.robot.clone(),
+            collisions: sim.collisions.clone(),
+        }
+    }
+
+    /// A metric by its expectation name (one of [`ROBOT_METRICS`]); `None` for other
+    /// names.
+    pub fn metric(&self, name: &str) -> Option<f64> {
+        let m = &self.metrics;
+        match name {
+            "collisions" => Some(self.collisions.len() as f64),
+            "route_completed" => Some(if self.route_completed { 1.0 } else { 0.0 }),
+            "max_cross_track_m" => Some(m.max_cross_track_m),
+            "max_heading_error_deg" => Some(m.max_heading_error_deg),
+            "max_tilt_deg" => Some(m.max_tilt_deg),
+            "distance_m" => Some(m.distance_m),
+            _ => None,
+        }
+    }
+
+    /// The Markdown section (`## Robot`).
+    pub fn markdown(&self) -> String {
+        let mut md = String::new();
+        let m = &self.metrics;
+        let _ = writeln!(
+            md,
+            "## Robot\n\n**{}** (route {:.1} m, {:.1} m driven).\n",
+            self.outcome, m.route_length_m, m.distance_m
+        );
+        let _ = writeln!(md, "| Metric | value | meaning |\n|---|---:|---|");
+        for (name, meaning) in ROBOT_METRICS {
+            let value = match (*name, self.metric(name)) {
+                ("collisions" | "route_completed", Some(v)) => format!("{v:.0}"),
+                (_, v) => fmt_opt(v, 3),
+            };
+            let _ = writeln!(md, "| `{name}.robot` | {value} | {meaning} |");
+        }
+        if self.collisions.is_empty() {
+            let _ = writeln!(md, "\nNo collisions.");
+            return md;
+        }
+        let _ = writeln!(
+            md,
+            "\nCollisions ({}; post #: index in the world's post list):\n\n\
+             | time [s] | robot link | obstacle | robot position [m] |\n|---:|---|---|---|",
+            self.collisions.len()
+        );
+        for c in self.collisions.iter().take(MAX_COLLISION_ROWS) {
+            let obstacle = match &c.obstacle {
+                Obstacle::Post { row, index } => format!("post row {row} #{index}"),
+                Obstacle::Trunk { row, slot } => format!("trunk row {row} slot {slot}"),
+                Obstacle::Ground => "ground".to_string(),
+            };
+            let [x, y, z] = c.robot_position_m.map(|v| {
+                // No "-0.00".
+                let s = format!("{v:.2}");
+                if s == "-0.00" { "0.00".to_string() } else { s }
+            });
+            let _ = writeln!(
+                md,
+                "| {:.3} | `{}` | {obstacle} | ({x}, {y}, {z}) |",
+                c.time_s, c.link
+            );
+        }
+        if self.collisions.len() > MAX_COLLISION_ROWS {
+            let _ = writeln!(
+                md,
+                "\n… and {} more (all in `report.json`).",
+                self.collisions.len() - MAX_COLLISION_ROWS
+            );
+        }
+        md
+    }
+}
+
 /// One estimator's results.
 #[derive(Clone, Debug, Serialize)]
 pub struct SourceReport {
@@ -95,14 +264,15 @@ impl Report {
     pub fn new(
         sc: &LoadedScenario,
         sim: &Simulation,
-        scores: Vec<(String, SourceScore)>,
+        scores: Scores,
         expectations: Vec<ExpectationResult>,
     ) -> Report {
         let s = &sc.scenario;
+        let Scores { sources, robot } = scores;
         let sources = sim
             .estimates
             .iter()
-            .zip(scores)
+            .zip(sources)
             .map(|(e, (name, score))| {
                 let stats = &e.stats;
                 SourceReport {
@@ -146,6 +316,7 @@ impl Report {
             },
             scoring: s.scoring.clone(),
             ground_truth: metrics::closed_loop(&sim.truth).ok(),
+            robot,
             sources,
             expectations,
             passed,
@@ -208,6 +379,8 @@ impl Report {
             };
             let _ = writeln!(md, "- {mark} `{}`: {detail}", x.text);
         }
+        md.push('\n');
+        md.push_str(&self.robot.markdown());
 
         let _ = writeln!(
             md,

@@ -6,12 +6,13 @@
 //! [`run`] adds the outputs: the run folder with TUM files, report and plots.
 
 use crate::estimator::{EstimatorError, EstimatorOutput, EstimatorSet, SensorFrames, StageStats};
-use crate::expect::ExpectationResult;
-use crate::report::{self, Report};
+use crate::expect::{ExpectationResult, ROBOT_SOURCE};
+use crate::report::{self, Report, RobotReport};
 use crate::scenario::{LoadedScenario, ScenarioError};
 use crate::scoring::{self, SourceScore};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
+use serde::Serialize;
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BinaryHeap};
 use std::io::IsTerminal;
@@ -20,7 +21,12 @@ use std::time::Instant;
 use thiserror::Error;
 use vinebench_msgs::geodesy::{LocalEnu, normal_gravity};
 use vinebench_msgs::{Nanos, PoseSample, TimedMessage, Trajectory};
-use vinebench_sim::motion::{KinematicSkidSteer, MotionModel};
+use vinebench_sim::motion::{
+    Dynamic, KinematicSkidSteer, MotionModel, MotionOutcome, RobotMetrics, RouteTracking,
+};
+use vinebench_sim::params::{HeadingMode, MotionModelKind};
+use vinebench_sim::physics::rapier::{HeightGrid, obstacles_of};
+use vinebench_sim::physics::{CollisionEvent, RapierPhysics, Scene};
 use vinebench_sim::robot::{RobotError, RobotModel};
 use vinebench_sim::route::build_route;
 use vinebench_sim::sensors::{SensorContext, SensorModel, build_sensors};
@@ -70,11 +76,53 @@ pub struct Simulation {
     pub distance_m: f64,
     /// Simulated duration, s.
     pub duration_s: f64,
-    /// True when the route was completed (false: stopped by `max_duration_s` or the
-    /// safety limit).
+    /// True when the route was completed (false: stopped by `max_duration_s`, the safety
+    /// limit, or because the robot got stuck).
     pub route_completed: bool,
+    /// How the motion ended.
+    pub outcome: MotionOutcome,
+    /// Contacts of the robot with posts, trunks or the ground (chassis).
+    pub collisions: Vec<CollisionEvent>,
+    /// The time limit that ended the run before the motion finished (`None`: the motion
+    /// finished, completed or stuck).
+    pub stopped_by: Option<TimeLimit>,
+    /// Truth-only metrics of the robot's run against its route, from every ground-truth
+    /// sample.
+    pub robot: RobotMetrics,
     /// Fault windows in absolute time.
     pub fault_windows: Vec<(Nanos, Nanos)>,
+}
+
+/// A time limit that ends a simulation whose motion has not finished.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TimeLimit {
+    /// The scenario's `max_duration_s`.
+    MaxDuration,
+    /// The safety limit: three times the expected duration plus 60 s.
+    Safety,
+}
+
+/// What a run is judged on: the scores of the estimate sources and the robot's own run.
+#[derive(Clone, Debug)]
+pub struct Scores {
+    /// One score per estimate source, in the order of `[estimators] run`.
+    pub sources: Vec<(String, SourceScore)>,
+    /// The robot's own run (the expectations' pseudo-source `robot`).
+    pub robot: RobotReport,
+}
+
+impl Scores {
+    /// The value of `metric` of `source` (an estimate source or `robot`), if it has one.
+    pub fn metric(&self, metric: &str, source: &str) -> Option<f64> {
+        if source == ROBOT_SOURCE {
+            return self.robot.metric(metric);
+        }
+        self.sources
+            .iter()
+            .find(|(n, _)| n == source)
+            .and_then(|(_, s)| s.metric(metric))
+    }
 }
 
 /// A message between its production and its arrival at the estimators, ordered by
@@ -152,7 +200,9 @@ pub struct Setup {
     /// The robot description.
     pub robot: RobotModel,
     /// The motion model, at rest at the start of the route.
-    pub motion: KinematicSkidSteer<vinebench_sim::world::Terrain>,
+    pub motion: Box<dyn MotionModel>,
+    /// Measures the robot's truth against the route it follows.
+    pub tracking: RouteTracking,
     /// The enabled sensors.
     pub sensors: Vec<Box<dyn SensorModel>>,
     /// The estimation stage.
@@ -172,20 +222,67 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
     };
     let route =
         build_route(&s.route, &world.layout, &s.world.headlands).map_err(|e| sc.param_error(e))?;
-    let motion = KinematicSkidSteer::new(
-        &s.motion,
-        route,
-        world.terrain.clone(),
-        &robot.geometry,
-        sc.start,
-    )
-    .map_err(|e| sc.param_error(e))?;
+    let gravity_mps2 = normal_gravity(s.origin.lat_deg, s.origin.alt_m);
+    // The heading policy the motion model applies: the kinematic skid-steer always drives
+    // along the route; the dynamic model's follower applies `motion.heading` (and rejects
+    // anything but `path` with no offset for robots that cannot move sideways).
+    let tracking = match s.motion.model {
+        MotionModelKind::Kinematic => RouteTracking::new(route.clone(), HeadingMode::Path, 0.0),
+        MotionModelKind::Rapier => {
+            RouteTracking::new(route.clone(), s.motion.heading, s.motion.heading_offset_deg)
+        }
+    };
+    let motion: Box<dyn MotionModel> = match s.motion.model {
+        MotionModelKind::Kinematic => Box::new(
+            KinematicSkidSteer::new(
+                &s.motion,
+                route,
+                world.terrain.clone(),
+                &robot.geometry,
+                sc.start,
+            )
+            .map_err(|e| sc.param_error(e))?,
+        ),
+        MotionModelKind::Rapier => {
+            let (lo, hi) = world.terrain.domain();
+            let cell = s.physics.heightfield_cell_m;
+            let grid = (cell.is_finite() && cell >= 0.01)
+                .then(|| HeightGrid::sample(&world.terrain, lo, hi, cell));
+            let obstacles = obstacles_of(&world);
+            Box::new(
+                Dynamic::new(
+                    &s.motion,
+                    &s.physics,
+                    route,
+                    &robot,
+                    &world.terrain,
+                    gravity_mps2,
+                    sc.start,
+                    |pose| {
+                        RapierPhysics::new(
+                            &robot,
+                            Scene {
+                                surface: world.terrain.clone(),
+                                obstacles: &obstacles,
+                                ground: grid.as_ref(),
+                            },
+                            &s.physics,
+                            s.motion.step_hz,
+                            gravity_mps2,
+                            pose,
+                        )
+                    },
+                )
+                .map_err(|e| sc.param_error(e))?,
+            )
+        }
+    };
     let enu = LocalEnu::new(s.origin);
     let ctx = SensorContext {
         master_seed: s.seed,
         start: sc.start,
         enu: enu.clone(),
-        gravity_mps2: normal_gravity(s.origin.lat_deg, s.origin.alt_m),
+        gravity_mps2,
         static_transforms: robot.static_transforms.clone(),
         geometry: robot.geometry.clone(),
     };
@@ -217,6 +314,7 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         world,
         robot,
         motion,
+        tracking,
         sensors,
         estimators,
     })
@@ -246,6 +344,7 @@ pub fn simulate_setup(
     let Setup {
         world,
         mut motion,
+        mut tracking,
         mut sensors,
         mut estimators,
         ..
@@ -276,6 +375,7 @@ pub fn simulate_setup(
     let mut last_t = start;
     let mut last_odometer = 0.0;
     let mut route_completed = false;
+    let mut stopped_by = None;
 
     loop {
         let next_sensor = sensors.iter().map(|x| x.next_time()).min();
@@ -283,13 +383,19 @@ pub fn simulate_setup(
             Some(ts) => ts.min(gt_time(gt_index)),
             None => gt_time(gt_index),
         };
-        if hard_stop.is_some_and(|h| t > h) || t > safety_stop {
+        if hard_stop.is_some_and(|h| t > h) {
+            stopped_by = Some(TimeLimit::MaxDuration);
+            break;
+        }
+        if t > safety_stop {
+            stopped_by = Some(TimeLimit::Safety);
             break;
         }
         let state = motion.advance_to(t);
         last_t = t;
         last_odometer = state.odometer_m;
         if t == gt_time(gt_index) {
+            tracking.push(&state);
             truth.push(PoseSample {
                 stamp: t,
                 world_from_body: state.world_from_body,
@@ -316,7 +422,7 @@ pub fn simulate_setup(
             pb.set_position((t - start).as_secs_f64() as u64);
         }
         if motion.finished() {
-            route_completed = true;
+            route_completed = motion.outcome() == MotionOutcome::Completed;
             break;
         }
     }
@@ -346,14 +452,19 @@ pub fn simulate_setup(
         distance_m: last_odometer,
         duration_s: (last_t - start).as_secs_f64(),
         route_completed,
+        outcome: motion.outcome(),
+        collisions: motion.collisions().to_vec(),
+        stopped_by,
+        robot: tracking.metrics(),
         fault_windows,
     })
 }
 
 /// Scores every estimate against the truth (in parallel; each source is independent,
-/// so the result does not depend on the thread count).
-pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Vec<(String, SourceScore)> {
-    sim.estimates
+/// so the result does not depend on the thread count), and the robot's own run.
+pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Scores {
+    let sources = sim
+        .estimates
         .par_iter()
         .map(|e| {
             (
@@ -366,21 +477,19 @@ pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Vec<(String, SourceScore)
                 ),
             )
         })
-        .collect()
+        .collect();
+    Scores {
+        sources,
+        robot: RobotReport::new(sim),
+    }
 }
 
-/// Evaluates the scenario's expectations on the scores.
-pub fn evaluate(sc: &LoadedScenario, scores: &[(String, SourceScore)]) -> Vec<ExpectationResult> {
+/// Evaluates the scenario's expectations on the scores of the estimate sources and the
+/// robot's own run.
+pub fn evaluate(sc: &LoadedScenario, scores: &Scores) -> Vec<ExpectationResult> {
     sc.expectations
         .iter()
-        .map(|x| {
-            x.evaluate(|metric, source| {
-                scores
-                    .iter()
-                    .find(|(n, _)| n == source)
-                    .and_then(|(_, s)| s.metric(metric))
-            })
-        })
+        .map(|x| x.evaluate(|metric, source| scores.metric(metric, source)))
         .collect()
 }
 

@@ -26,7 +26,8 @@ use thiserror::Error;
 use vinebench_msgs::Nanos;
 use vinebench_msgs::geodesy::Geodetic;
 use vinebench_sim::params::{
-    FaultsParams, MotionParams, ParamError, RobotParams, RouteParams, SensorsParams, WorldParams,
+    FaultsParams, MotionParams, ParamError, PhysicsParams, RobotParams, RouteParams, SensorsParams,
+    WorldParams,
 };
 
 /// A complete scenario, every field resolved (scenario file over defaults).
@@ -51,6 +52,8 @@ pub struct Scenario {
     pub robot: RobotParams,
     /// `[motion]`.
     pub motion: MotionParams,
+    /// `[physics]`.
+    pub physics: PhysicsParams,
     /// `[route]`.
     pub route: RouteParams,
     /// `[sensors]`.

@@ -64,6 +64,11 @@ fn malformed_scenarios_exit_2_with_file_line_column_and_field() {
             "expect.toml:1:11: `expect[0]`",
         ),
         (
+            "robot-metric.toml",
+            "expect = [\"max_tilt_deg.eif < 5\"]\n",
+            "robot-metric.toml:1:11: `expect[0]`: `max_tilt_deg` is a metric of `robot`",
+        ),
+        (
             "frame.toml",
             "[sensors.imu]\nframe = \"lidar\"\n",
             "frame.toml:2:9: `sensors.imu.frame`",

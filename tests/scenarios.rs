@@ -43,6 +43,16 @@ fn poor_gnss_meets_its_expectations() {
 }
 
 #[test]
+fn mecanum_strafe_meets_its_expectations() {
+    check("mecanum-strafe.toml");
+}
+
+#[test]
+fn slope_row_meets_its_expectations() {
+    check("slope-row.toml");
+}
+
+#[test]
 fn the_defaults_run_as_a_scenario() {
     check("defaults.toml");
 }

@@ -13,8 +13,10 @@
 //! Nothing in the algorithms (`vinebench::estimator`, ...) may use this crate: they see
 //! only the messages.
 
+pub mod control;
 pub mod motion;
 pub mod params;
+pub mod physics;
 pub mod rng;
 pub mod robot;
 pub mod route;

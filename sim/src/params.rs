@@ -137,8 +137,20 @@ default_from_section!(RobotParams, "robot");
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum MotionModelKind {
+    /// Rigid-body dynamics with rapier3d (`[physics]`).
+    Rapier,
     /// Terrain-following kinematic skid-steer.
     Kinematic,
+}
+
+/// How a holonomic robot points while it follows its route.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HeadingMode {
+    /// Along the route (plus `heading_offset_deg`), like a differential robot.
+    Path,
+    /// Keep the start heading (route tangent plus `heading_offset_deg`) all the way.
+    Fixed,
 }
 
 /// `[motion]`.
@@ -171,8 +183,43 @@ pub struct MotionParams {
     pub still_before_s: f64,
     /// Standstill after the route, s.
     pub still_after_s: f64,
+    /// Heading policy of holonomic robots.
+    pub heading: HeadingMode,
+    /// Heading relative to the route tangent, degrees (holonomic robots).
+    pub heading_offset_deg: f64,
 }
 default_from_section!(MotionParams, "motion");
+
+/// `[physics]`: the rigid-body backend and the ground contact model.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PhysicsParams {
+    /// Multiplier on the URDF friction coefficients.
+    pub friction_scale: f64,
+    /// Shear deformation modulus of the soil, m.
+    pub shear_deformation_m: f64,
+    /// Damping time of the shear, s.
+    pub shear_damping_s: f64,
+    /// Rolling-resistance coefficient.
+    pub rolling_resistance: f64,
+    /// Contact probes per track.
+    pub track_probes: u32,
+    /// Track link pitch, m.
+    pub track_link_pitch_m: f64,
+    /// Rollers per mecanum wheel.
+    pub mecanum_rollers: u32,
+    /// Ride ripple amplitude of track links and rollers, m.
+    pub ripple_m: f64,
+    /// Bandwidth of the drive joints' speed servos, Hz.
+    pub motor_bandwidth_hz: f64,
+    /// Yaw-rate loop gain of the drive controller, 1/s.
+    pub yaw_rate_gain_per_s: f64,
+    /// Resolution of the terrain heightfield that the chassis collides with, m.
+    pub heightfield_cell_m: f64,
+    /// The run ends when the route follower has not advanced for this long, s.
+    pub stuck_timeout_s: f64,
+}
+default_from_section!(PhysicsParams, "physics");
 
 /// Route kind.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -245,6 +292,9 @@ pub struct WaypointsParams {
     pub points: Vec<[f64; 2]>,
     /// Return to the first point.
     pub closed: bool,
+    /// After the last point, stop and drive back along the same path to the first point
+    /// without turning (a cusp at the last point). Not allowed with `closed`.
+    pub there_and_back: bool,
 }
 
 /// `[sensors]`.

@@ -11,6 +11,10 @@
 //! curvature is computed analytically from the curve and the mapping's metric. The
 //! polyline's chords are shorter than the arcs they cut by at most `Δθ²/24` relative
 //! (`2.6e-4 m` per 1.25 m-radius half turn), and lie within `0.05²/(8R)` of the curve.
+//!
+//! A `waypoints` route with `there_and_back` continues past its last point back to its
+//! first along the same points in reverse order: the direction of travel reverses at a
+//! *cusp* ([`Route::cusps_m`]), where the robot stops and drives back without turning.
 
 use crate::params::{
     HeadlandsParams, LoopDirection, ParamError, RouteKind, RouteParams, WaypointsParams,
@@ -37,14 +41,27 @@ const MIN_PIECE_M: f64 = 1e-9;
 ///
 /// Consecutive points are distinct and `arc_length_m` is strictly increasing, starting
 /// at 0. The robot starts at `points[0]` facing along the first segment.
+///
+/// Arc length always increases in the direction of travel, also after a cusp: the
+/// tangent ([`Route::tangent_at`]) is the direction of travel, and flips by 180° at each
+/// cusp.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Route {
     /// Path points `(x, y)` in the world frame, m, about `ROUTE_SAMPLE_M` apart.
     pub points: Vec<Vector2<f64>>,
     /// Arc length from the start at each point, m.
     pub arc_length_m: Vec<f64>,
-    /// Signed curvature at each point, 1/m (positive: turning left).
+    /// Signed curvature at each point, 1/m (positive: turning left, with respect to the
+    /// direction of travel). At a cusp point, the value of the leg that ends there.
     pub curvature_per_m: Vec<f64>,
+    /// Arc lengths where the direction of travel reverses (*cusps*), m: strictly
+    /// increasing, strictly inside `(0, total)`, each the arc length of a route point.
+    ///
+    /// At a cusp the robot stops; the tangent flips by 180° and the path after the cusp
+    /// retraces the path before it (the same points in reverse order, turning the other
+    /// way: the curvature changes sign). Empty for routes that only drive forward (row
+    /// routes, plain `waypoints`).
+    pub cusps_m: Vec<f64>,
 }
 
 impl Route {
@@ -63,8 +80,12 @@ impl Route {
         self.arc_length_m.last().copied().unwrap_or(0.0)
     }
 
-    /// True when the route ends where it starts (a loop).
+    /// True when the route ends where it starts (a loop). A route with cusps is never
+    /// closed: a there-and-back route ends at its start, but facing backwards.
     pub fn is_closed(&self) -> bool {
+        if !self.cusps_m.is_empty() {
+            return false;
+        }
         match (self.points.first(), self.points.last()) {
             (Some(a), Some(b)) if self.points.len() > 2 => (a - b).norm() <= CLOSED_TOLERANCE_M,
             _ => false,
@@ -107,7 +128,9 @@ impl Route {
     }
 
     /// Signed curvature at arc length `s_m`, linearly interpolated, 1/m (the end values
-    /// outside the route).
+    /// outside the route). Just after a cusp the cusp point's curvature counts negated
+    /// (the leg leaving it turns the other way), so the curvature does not blend across
+    /// the reversal.
     pub fn curvature_at(&self, s_m: f64) -> f64 {
         match self.points.len() {
             0 => 0.0,
@@ -116,15 +139,38 @@ impl Route {
                 let i = self.segment_index(s_m);
                 let (s0, s1) = (self.arc_length_m[i], self.arc_length_m[i + 1]);
                 let f = ((s_m - s0) / (s1 - s0)).clamp(0.0, 1.0);
-                self.curvature_per_m[i]
-                    + (self.curvature_per_m[i + 1] - self.curvature_per_m[i]) * f
+                let k0 = if self.cusps_m.contains(&s0) {
+                    -self.curvature_per_m[i]
+                } else {
+                    self.curvature_per_m[i]
+                };
+                k0 + (self.curvature_per_m[i + 1] - k0) * f
             }
         }
+    }
+
+    /// The first cusp with arc length strictly greater than `s_m`, m (`None` when the
+    /// rest of the route drives in one direction). The robot must stop there.
+    pub fn next_cusp_after(&self, s_m: f64) -> Option<f64> {
+        let i = self.cusps_m.partition_point(|&c| c <= s_m);
+        self.cusps_m.get(i).copied()
+    }
+
+    /// The last cusp with arc length at most `s_m`, m (`None` before the first cusp): the
+    /// start of the leg that `s_m` lies on (a cusp belongs to the leg it starts).
+    pub fn previous_cusp_at_or_before(&self, s_m: f64) -> Option<f64> {
+        let i = self.cusps_m.partition_point(|&c| c <= s_m);
+        i.checked_sub(1).map(|i| self.cusps_m[i])
     }
 
     /// Arc length of the point of the route closest to `xy` among the route's part with
     /// arc length in `[hint_s_m - window_m, hint_s_m + window_m]` (projected onto the
     /// polyline segments, clamped to `[0, total]`).
+    ///
+    /// The search never crosses a cusp: it covers only the leg holding `hint_s_m`, i.e.
+    /// `[max(hint - window, last cusp <= hint), min(hint + window, first cusp > hint)]`.
+    /// The legs before and after a cusp share their points, so a position on the path
+    /// maps to the leg the robot is on, never to the other one.
     ///
     /// The bounded window is what keeps progress tracking local: a point of the
     /// neighbouring lane 2.5 m away but 4 m further along the route is never considered.
@@ -134,8 +180,23 @@ impl Route {
         if n < 2 {
             return 0.0;
         }
-        let lo = self.segment_index(hint_s_m - window_m);
-        let hi = self.segment_index(hint_s_m + window_m);
+        let mut lo = self.segment_index(hint_s_m - window_m);
+        let mut hi = self.segment_index(hint_s_m + window_m);
+        let leg_start = self.previous_cusp_at_or_before(hint_s_m);
+        let leg_end = self.next_cusp_after(hint_s_m);
+        if let Some(c) = leg_start {
+            // The leg starts with the segment beginning at the cusp.
+            lo = lo.max(self.segment_index(c));
+        }
+        if let Some(c) = leg_end {
+            // The leg ends with the last segment starting before the cusp.
+            let last = self
+                .arc_length_m
+                .partition_point(|&a| a < c)
+                .saturating_sub(1)
+                .min(n - 2);
+            hi = hi.min(last);
+        }
         let mut best = (f64::INFINITY, self.arc_length_m[lo]);
         for i in lo..=hi {
             let a = self.points[i];
@@ -148,7 +209,15 @@ impl Route {
                 best = (d2, s);
             }
         }
-        best.1
+        // A safety net for a hand-built route with a cusp between its points.
+        let mut s = best.1;
+        if let Some(c) = leg_start {
+            s = s.max(c);
+        }
+        if let Some(c) = leg_end {
+            s = s.min(c);
+        }
+        s
     }
 }
 
@@ -241,13 +310,22 @@ pub fn build_route(
             Ok(sample_pieces(&pieces, layout))
         }
         RouteKind::Waypoints => {
+            let w = &params.waypoints;
+            if w.closed && w.there_and_back {
+                return Err(ParamError::new(
+                    "route.waypoints.there_and_back",
+                    "false when route.waypoints.closed = true (a closed route has no last \
+                     point to turn back at)",
+                    true,
+                ));
+            }
             let radius = require_non_negative("route.turn_radius_m", params.turn_radius_m)?;
             let radius = if radius == 0.0 {
                 DEFAULT_FILLET_RADIUS_M
             } else {
                 radius
             };
-            let pieces = waypoint_pieces(&params.waypoints, radius)?;
+            let pieces = waypoint_pieces(w, radius)?;
             // Plane coordinates are world coordinates: the identity layout.
             let identity = RowLayout {
                 count: 1,
@@ -256,9 +334,35 @@ pub fn build_route(
                 yaw_rad: 0.0,
                 curvature_per_m: 0.0,
             };
-            Ok(sample_pieces(&pieces, &identity))
+            let forward = sample_pieces(&pieces, &identity);
+            Ok(if w.there_and_back {
+                there_and_back(forward)
+            } else {
+                forward
+            })
         }
     }
+}
+
+/// `forward` followed by its points in reverse order back to its start (the last point,
+/// the cusp, appears once), arc length continuing to increase and the curvature negated
+/// (a path traversed backwards turns the other way).
+fn there_and_back(mut route: Route) -> Route {
+    let n = route.len();
+    if n < 2 {
+        return route;
+    }
+    let total = route.total_length_m();
+    route.points.reserve(n - 1);
+    route.arc_length_m.reserve(n - 1);
+    route.curvature_per_m.reserve(n - 1);
+    for i in (0..n - 1).rev() {
+        route.points.push(route.points[i]);
+        route.arc_length_m.push(2.0 * total - route.arc_length_m[i]);
+        route.curvature_per_m.push(-route.curvature_per_m[i]);
+    }
+    route.cusps_m = vec![total];
+    route
 }
 
 /// Validated headland-turn geometry of a row route.
@@ -580,6 +684,7 @@ fn sample_pieces(pieces: &[Piece], layout: &RowLayout) -> Route {
         points: Vec::new(),
         arc_length_m: Vec::new(),
         curvature_per_m: Vec::new(),
+        cusps_m: Vec::new(),
     };
     let mut arc = 0.0;
     for piece in pieces {
@@ -894,7 +999,11 @@ mod tests {
         RouteParams {
             kind: RouteKind::Waypoints,
             turn_radius_m: radius,
-            waypoints: WaypointsParams { points, closed },
+            waypoints: WaypointsParams {
+                points,
+                closed,
+                there_and_back: false,
+            },
             ..RouteParams::default()
         }
     }
@@ -966,6 +1075,148 @@ mod tests {
             &h,
         );
         assert_eq!(e.unwrap_err().path, "route.turn_radius_m");
+    }
+
+    /// Three waypoints with a 90° left corner at (10, 0), filleted with radius 1: forward
+    /// length 10 + 8 - 2 + π/2.
+    fn corner_there_and_back(there_and_back: bool) -> Route {
+        let mut p = waypoints(vec![[0.0, 0.0], [10.0, 0.0], [10.0, 8.0]], false, 1.0);
+        p.waypoints.there_and_back = there_and_back;
+        build_route(&p, &layout(0.0), &headlands()).unwrap()
+    }
+
+    const CORNER_FORWARD_M: f64 = 16.0 + FRAC_PI_2;
+
+    #[test]
+    fn there_and_back_retraces_the_forward_path_with_a_cusp_at_its_end() {
+        let fwd = corner_there_and_back(false);
+        let route = corner_there_and_back(true);
+        let big_l = fwd.total_length_m();
+        assert!((big_l - CORNER_FORWARD_M).abs() < 1e-9, "{big_l}");
+        assert!(fwd.cusps_m.is_empty());
+        let n = fwd.len();
+        // The forward leg unchanged, then the same points reversed, the cusp point once.
+        assert_eq!(route.len(), 2 * n - 1);
+        assert_eq!(route.points[..n], fwd.points[..]);
+        assert_eq!(route.arc_length_m[..n], fwd.arc_length_m[..]);
+        assert_eq!(route.curvature_per_m[..n], fwd.curvature_per_m[..]);
+        for j in 1..n {
+            let (back, ahead) = (n - 1 + j, n - 1 - j);
+            assert_eq!(route.points[back], fwd.points[ahead], "point {back}");
+            // As far past the cusp as the forward point is before it.
+            let past = route.arc_length_m[back] - big_l;
+            let before = big_l - fwd.arc_length_m[ahead];
+            assert!((past - before).abs() < 1e-12, "{past} vs {before}");
+            assert_eq!(route.curvature_per_m[back], -fwd.curvature_per_m[ahead]);
+        }
+        assert!(route.arc_length_m.windows(2).all(|w| w[1] > w[0]));
+        assert!((route.total_length_m() - 2.0 * CORNER_FORWARD_M).abs() < 1e-9);
+        assert_eq!(route.cusps_m, vec![big_l]);
+        // Back at the start, but facing the other way: not a loop.
+        assert_eq!(route.points[0], *route.points.last().unwrap());
+        assert!(!route.is_closed());
+        // Out along +x, left turn, up +y to the cusp; then down -y, right turn, back
+        // along -x.
+        let t = |s: f64| route.tangent_at(s);
+        assert!((t(0.5) - Vector2::new(1.0, 0.0)).norm() < 1e-12);
+        assert!((t(big_l - 0.01) - Vector2::new(0.0, 1.0)).norm() < 1e-12);
+        assert!((t(big_l + 0.01) - Vector2::new(0.0, -1.0)).norm() < 1e-12);
+        assert!((t(big_l + 0.01) + t(big_l - 0.01)).norm() < 1e-12);
+        assert!((t(2.0 * big_l - 0.5) - Vector2::new(-1.0, 0.0)).norm() < 1e-12);
+        let mid_fillet = 9.0 + FRAC_PI_2 / 2.0;
+        assert!((route.curvature_at(mid_fillet) - 1.0).abs() < 1e-12);
+        assert!((route.curvature_at(2.0 * big_l - mid_fillet) + 1.0).abs() < 1e-12);
+        assert!(route.curvature_at(big_l + 0.01).abs() < 1e-12);
+        for s in [0.0, 3.0, 9.5, mid_fillet, 12.0, big_l - 0.02] {
+            let (a, b) = (route.point_at(s), route.point_at(2.0 * big_l - s));
+            assert!((a - b).norm() < 1e-9, "s {s}: {a:?} vs {b:?}");
+        }
+        // Cusp queries: a cusp starts the leg after it.
+        assert_eq!(route.next_cusp_after(0.0), Some(big_l));
+        assert_eq!(route.next_cusp_after(big_l - 1e-9), Some(big_l));
+        assert_eq!(route.next_cusp_after(big_l), None);
+        assert_eq!(route.previous_cusp_at_or_before(big_l - 1e-9), None);
+        assert_eq!(route.previous_cusp_at_or_before(big_l), Some(big_l));
+        assert_eq!(route.previous_cusp_at_or_before(1e6), Some(big_l));
+        assert_eq!(fwd.next_cusp_after(0.0), None);
+        assert_eq!(fwd.previous_cusp_at_or_before(1e6), None);
+    }
+
+    #[test]
+    fn closest_progress_never_crosses_a_cusp() {
+        let route = corner_there_and_back(true);
+        let big_l = route.cusps_m[0];
+        // A point on the shared path, 3 m before the cusp going out (x = 10, y = 5).
+        let q = Vector2::new(10.0, 5.0);
+        assert!((route.point_at(big_l - 3.0) - q).norm() < 1e-12);
+        // Going out, even a window spanning the whole route stays on the way out.
+        for window in [1.0, 5.0, 100.0] {
+            let s = route.closest_progress(&q, big_l - 0.5, window);
+            assert!(s <= big_l, "window {window}: {s}");
+        }
+        assert!((route.closest_progress(&q, big_l - 0.5, 100.0) - (big_l - 3.0)).abs() < 1e-9);
+        // At the cusp and after it, the same point maps to the way back.
+        for hint in [big_l, big_l + 0.5, big_l + 6.0] {
+            let s = route.closest_progress(&q, hint, 100.0);
+            assert!((s - (big_l + 3.0)).abs() < 1e-9, "hint {hint}: {s}");
+        }
+        // The start point: s = 0 going out, the total coming back.
+        let start = route.points[0];
+        assert!(route.closest_progress(&start, big_l - 0.5, 100.0).abs() < 1e-12);
+        let total = route.total_length_m();
+        assert!((route.closest_progress(&start, big_l + 0.5, 100.0) - total).abs() < 1e-12);
+        // Beyond the cusp's end of the path: the cusp itself, from either side.
+        let off_end = Vector2::new(10.0, 12.0);
+        assert_eq!(route.closest_progress(&off_end, big_l - 0.5, 100.0), big_l);
+        assert_eq!(route.closest_progress(&off_end, big_l + 0.5, 100.0), big_l);
+        // A small window still bounds the search within the leg.
+        let s = route.closest_progress(&start, big_l + 0.5, 1.0);
+        assert!((big_l..=big_l + 1.5 + ROUTE_SAMPLE_M).contains(&s), "{s}");
+    }
+
+    #[test]
+    fn there_and_back_is_not_allowed_on_a_closed_route() {
+        let l = layout(0.0);
+        let h = headlands();
+        let mut p = waypoints(vec![[0.0, 0.0], [10.0, 0.0], [10.0, 8.0]], true, 0.0);
+        p.waypoints.there_and_back = true;
+        let e = build_route(&p, &l, &h).unwrap_err();
+        assert_eq!(e.path, "route.waypoints.there_and_back");
+        assert!(e.expected.contains("closed"), "{e}");
+        // The points are still checked on a there-and-back route.
+        let mut p = waypoints(vec![[0.0, 0.0]], false, 0.0);
+        p.waypoints.there_and_back = true;
+        assert_eq!(
+            build_route(&p, &l, &h).unwrap_err().path,
+            "route.waypoints.points"
+        );
+    }
+
+    #[test]
+    fn kinematic_model_rejects_a_route_with_a_cusp() {
+        use crate::motion::KinematicSkidSteer;
+        use crate::params::MotionParams;
+        use crate::world::PlaneSurface;
+        use vinebench_msgs::Nanos;
+        let new = |route: Route| {
+            KinematicSkidSteer::new(
+                &MotionParams::default(),
+                route,
+                PlaneSurface {
+                    z0_m: 0.0,
+                    gradient: Vector2::zeros(),
+                },
+                &crate::robot::RobotModel::builtin("tracked-sensorbox")
+                    .expect("built-in robot")
+                    .geometry,
+                Nanos::from_secs(1_631_696_400),
+            )
+        };
+        // The forward path alone is fine; reversing at its end is not.
+        assert!(new(corner_there_and_back(false)).is_ok());
+        let e = new(corner_there_and_back(true)).err().unwrap();
+        assert_eq!(e.path, "motion.model");
+        assert!(e.expected.contains("rapier"), "{e}");
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! Ground truth: the true kinematic state of the robot body.
 
+use crate::robot::MAX_DRIVE_JOINTS;
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use vinebench_msgs::Nanos;
 
@@ -23,10 +24,10 @@ pub struct TruthSample {
     pub angular_velocity_in_body: Vector3<f64>,
     /// Time derivative of `angular_velocity_in_body`, rad/s².
     pub angular_acceleration_in_body: Vector3<f64>,
-    /// Left track surface speed as the drive turns it (what an encoder sees), m/s.
-    pub track_speed_left_mps: f64,
-    /// Right track surface speed as the drive turns it, m/s.
-    pub track_speed_right_mps: f64,
+    /// Drive joint speeds as the motors turn them (what the encoders see), rad/s, in
+    /// [`crate::robot::Drive::joints`] order (tracked: left, right sprocket; mecanum:
+    /// front-left, front-right, rear-left, rear-right wheel); unused entries 0.
+    pub drive_speeds_radps: [f64; MAX_DRIVE_JOINTS],
     /// Distance travelled by the body origin since the start, m.
     pub odometer_m: f64,
 }
@@ -81,8 +82,7 @@ mod tests {
             acceleration_in_world: Vector3::zeros(),
             angular_velocity_in_body: Vector3::new(0.0, 0.0, w),
             angular_acceleration_in_body: Vector3::zeros(),
-            track_speed_left_mps: 0.0,
-            track_speed_right_mps: 0.0,
+            drive_speeds_radps: [0.0; MAX_DRIVE_JOINTS],
             odometer_m: 0.0,
         };
         let body_from_sensor = Isometry3::from_parts(

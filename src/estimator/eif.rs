@@ -70,7 +70,7 @@ use super::ins::{
     STATE_DIM, Vec15,
 };
 use super::measurement::{self, Linearized};
-use super::params::EifParams;
+use super::params::{EifParams, ImuSampleModel};
 use super::so3::skew;
 use super::{Estimator, EstimatorError, EstimatorStats};
 use nalgebra::{
@@ -129,6 +129,7 @@ struct Config {
     output_period: Nanos,
     gnss_tau: f64,
     orientation_tau: f64,
+    imu_interval_mean: bool,
 }
 
 impl Config {
@@ -194,6 +195,7 @@ impl Config {
                 "orientation_correlation_time_s",
                 p.orientation_correlation_time_s,
             )?,
+            imu_interval_mean: p.imu_sample_model == ImuSampleModel::IntervalMean,
         })
     }
 }
@@ -218,18 +220,22 @@ impl ImuSample {
     }
 }
 
-/// The IMU input between two samples: linear interpolation, or the first sample held
-/// across a gap.
+/// The IMU input between two samples: the second sample held (interval means), linear
+/// interpolation (point samples), or the first sample held across a gap.
 struct Interval {
     a: ImuSample,
     b: ImuSample,
     hold: bool,
+    mean: bool,
 }
 
 impl Interval {
     fn at(&self, t: Nanos) -> (Vector3<f64>, Vector3<f64>) {
         if self.hold || self.b.t <= self.a.t {
             return (self.a.f, self.a.w);
+        }
+        if self.mean {
+            return (self.b.f, self.b.w);
         }
         let s = ((t - self.a.t).as_nanos() as f64 / (self.b.t - self.a.t).as_nanos() as f64)
             .clamp(0.0, 1.0);
@@ -854,6 +860,7 @@ impl Eif {
             a: f.last_imu,
             b: sample,
             hold,
+            mean: self.cfg.imu_interval_mean,
         };
         // Measurements inside the interval: propagate to each, correct, go on.
         while let Some(s) = self.pending.front().map(|(s, _)| *s)
@@ -1332,6 +1339,236 @@ mod tests {
         let eif = run(&p, &msgs);
         let e = errors(eif.trajectory(), &motion);
         assert!(summary(&e, 10.0, 10.1).0 > 0.01);
+    }
+
+    /// Yaw oscillation of the IMU-sample-model tests: the body (IMU at its origin, see
+    /// [`synthetic::transforms_imu_at_origin`]) turns about the world z axis through its
+    /// origin with `ω(t) = A sin(a t)`, `a = 2π·15 Hz`, `A = 0.5 rad/s`, from rest, so
+    /// `ψ(t) = A (1 − cos a t) / a`; 200 Hz IMU for 2 s.
+    const WOBBLE_A: f64 = 0.5;
+    const WOBBLE_HZ: f64 = 15.0;
+    const WOBBLE_STEP: Nanos = Nanos::from_millis(5);
+    const WOBBLE_SAMPLES: i64 = 400;
+
+    fn wobble_a() -> f64 {
+        std::f64::consts::TAU * WOBBLE_HZ
+    }
+
+    /// `ψ(t)`, rad (0 before the start: at rest).
+    fn wobble_yaw(t: f64) -> f64 {
+        if t <= 0.0 {
+            return 0.0;
+        }
+        WOBBLE_A * (1.0 - (wobble_a() * t).cos()) / wobble_a()
+    }
+
+    /// `ω(t) = ψ'(t)`, rad/s.
+    fn wobble_rate(t: f64) -> f64 {
+        if t <= 0.0 {
+            return 0.0;
+        }
+        WOBBLE_A * (wobble_a() * t).sin()
+    }
+
+    /// `world_from_body` at the start: level, yawed.
+    fn wobble_start() -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::new(12.0, -4.0, 0.3),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 0.7),
+        )
+    }
+
+    /// One RTK fix at T0 (to start the filter; none after it, and no AHRS after the first
+    /// sample), and the IMU messages: rates that are the exact means over (t_{i−1}, t_i]
+    /// (`interval_mean`) or the values at t_i; specific force `+g` along world z
+    /// throughout (the IMU does not move).
+    fn wobble_msgs(interval_mean: bool) -> Vec<Message> {
+        let tf = synthetic::transforms_imu_at_origin();
+        let body_from_imu = tf.body_from(synthetic::IMU_FRAME).unwrap();
+        let body_from_ant = tf.body_from(synthetic::ANTENNA_FRAME).unwrap();
+        let start = wobble_start();
+        let q0 = (start * body_from_imu).rotation;
+        // A turn about world z leaves the world z axis fixed in the IMU frame.
+        let z_imu = q0.inverse() * Vector3::z();
+        let dt = WOBBLE_STEP.as_secs_f64();
+        let mut msgs = Vec::new();
+        for i in 0..=WOBBLE_SAMPLES {
+            let stamp = synthetic::T0 + Nanos(i * WOBBLE_STEP.as_nanos());
+            let t = (stamp - synthetic::T0).as_secs_f64();
+            let rate = if interval_mean {
+                (wobble_yaw(t) - wobble_yaw(t - dt)) / dt
+            } else {
+                wobble_rate(t)
+            };
+            msgs.push(Message::Imu(synthetic::imu_msg(
+                stamp,
+                z_imu * rate,
+                z_imu * synthetic::GRAVITY,
+                (i == 0).then_some(q0),
+            )));
+            if i == 0 {
+                let p_ant = start * nalgebra::Point3::from(body_from_ant.translation.vector);
+                msgs.push(Message::GnssFix(synthetic::gnss_fix(stamp, &p_ant.coords)));
+            }
+        }
+        msgs
+    }
+
+    /// Runs the EIF with `model` on the wobble messages, gyro integration only (no AHRS,
+    /// GNSS velocity or tracking camera; the single fix only starts it). Per output
+    /// (every IMU sample): (sample index n, signed yaw error ψ̂ − ψ about world z rad,
+    /// position error m). Checks on the way that the error is a rotation about world z
+    /// only and that the velocity ends at zero.
+    fn wobble_errors(model: ImuSampleModel, msgs: &[Message]) -> Vec<(i64, f64, f64)> {
+        let mut p = params();
+        p.imu_sample_model = model;
+        p.use_imu_orientation = false;
+        p.use_gnss_velocity = false;
+        p.use_tracking_camera = false;
+        p.output_rate_hz = 200.0;
+        let mut eif = Eif::new(
+            &p,
+            synthetic::transforms_imu_at_origin(),
+            synthetic::origin(),
+        )
+        .unwrap();
+        for m in msgs {
+            eif.handle(m);
+        }
+        eif.finish();
+        let v = eif.state().unwrap().1.v;
+        assert!(v.norm() < 1e-9, "{model:?}: final velocity {v}");
+        let start = wobble_start();
+        let out: Vec<_> = eif
+            .trajectory()
+            .samples
+            .iter()
+            .map(|s| {
+                let k = (s.stamp - synthetic::T0).as_nanos();
+                assert_eq!(k % WOBBLE_STEP.as_nanos(), 0, "output off the IMU grid");
+                let n = k / WOBBLE_STEP.as_nanos();
+                let psi = wobble_yaw((s.stamp - synthetic::T0).as_secs_f64());
+                let truth =
+                    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), psi) * start.rotation;
+                let e = (s.world_from_body.rotation * truth.inverse()).scaled_axis();
+                assert!(e.xy().norm() < 1e-12, "{model:?} n {n}: tilt error {e}");
+                let dp = s.world_from_body.translation.vector - start.translation.vector;
+                (n, e.z, dp.norm())
+            })
+            .collect();
+        assert_eq!(
+            out.len(),
+            WOBBLE_SAMPLES as usize + 1,
+            "{model:?}: one output per sample"
+        );
+        assert!(
+            !eif.stats().used.contains_key("gnss_fix"),
+            "the fix only starts the filter"
+        );
+        out
+    }
+
+    fn max_abs(e: &[(i64, f64, f64)]) -> (f64, f64) {
+        e.iter().fold((0.0, 0.0), |(y, p), x| {
+            (f64::max(y, x.1.abs()), f64::max(p, x.2))
+        })
+    }
+
+    /// Interval-mean IMU data `ω̄_i = (ψ(t_i) − ψ(t_{i−1}))/Δ`:
+    /// - `interval_mean` holds ω̄_i over the interval; about a fixed axis the rotation
+    ///   increments `Exp(ω̄_i Δ)` telescope to `ψ(t_n)` exactly, so the yaw error is
+    ///   rounding only.
+    /// - `point` uses the trapezoid `(ω̄_{i−1} + ω̄_i)Δ/2` (ω̄_0 = 0, at rest before), which
+    ///   sums to `(ψ_n + ψ_{n−1})/2`: a half-sample lag, error `−(ψ_n − ψ_{n−1})/2 =
+    ///   −(A/a)·sin(aΔ/2)·sin(a(n − ½)Δ)`, largest near `AΔ/2 ≈ 1.24e-3 rad`.
+    ///
+    /// Either way the IMU stays where it started: the specific force `+g` along world z,
+    /// rotated about that same axis, cancels gravity exactly (the ~1e-9 m left is the
+    /// fix's geodetic round trip at initialisation).
+    #[test]
+    fn interval_mean_model_is_exact_on_interval_mean_imu_data() {
+        let msgs = wobble_msgs(true);
+        let exact = wobble_errors(ImuSampleModel::IntervalMean, &msgs);
+        let (yaw, pos) = max_abs(&exact);
+        assert!(
+            yaw < 1e-9,
+            "interval_mean on interval means: yaw error {yaw}"
+        );
+        assert!(
+            pos < 1e-8,
+            "interval_mean on interval means: position error {pos}"
+        );
+
+        let lagged = wobble_errors(ImuSampleModel::Point, &msgs);
+        let dt = WOBBLE_STEP.as_secs_f64();
+        for &(n, e, _) in &lagged {
+            let t = n as f64 * dt;
+            let expected = -(wobble_yaw(t) - wobble_yaw(t - dt)) / 2.0;
+            assert!(
+                (e - expected).abs() < 1e-9,
+                "point on interval means, n {n}: yaw error {e}, half-sample lag {expected}"
+            );
+        }
+        let (yaw, pos) = max_abs(&lagged);
+        assert!(yaw > 1e-3, "point on interval means: yaw error only {yaw}");
+        assert!(pos < 1e-8, "point on interval means: position error {pos}");
+    }
+
+    /// Point IMU data `ω_i = ω(t_i)`, θ = aΔ/2:
+    /// - `point` is the composite trapezoid rule; for a sine it sums in closed form to
+    ///   `ψ̂_n = ψ_n · θ cot θ`, error `−ψ_n (1 − θ cot θ)`, bounded by
+    ///   `B = (2A/a)(1 − θ cot θ) ≈ 1.97e-4 rad`, reached where ψ peaks (t = 0.1 s, …;
+    ///   Euler–Maclaurin's leading term is `Δ²/6·A·a ≈ 1.96e-4`), and at every stamp by
+    ///   the textbook `Δ²/12 · max|ω̈| · t_n` with `max|ω̈| = A a²`.
+    /// - `interval_mean` holds ω_i over (t_{i−1}, t_i]: the right Riemann sum,
+    ///   `ψ̂_n = AΔ sin(nθ) sin((n+1)θ)/sin θ`, error ≈ `Δ/2 · ω(t_n)` (first order, up to
+    ///   ≈ 1.35e-3 rad), more than 5·B.
+    #[test]
+    fn point_model_is_trapezoidal_on_point_imu_data() {
+        let msgs = wobble_msgs(false);
+        let dt = WOBBLE_STEP.as_secs_f64();
+        let a = wobble_a();
+        let th = a * dt / 2.0;
+        let cot_ratio = th / th.tan();
+        let bound = 2.0 * WOBBLE_A / a * (1.0 - cot_ratio);
+
+        let trapezoid = wobble_errors(ImuSampleModel::Point, &msgs);
+        for &(n, e, _) in &trapezoid {
+            let t = n as f64 * dt;
+            let expected = -wobble_yaw(t) * (1.0 - cot_ratio);
+            assert!(
+                (e - expected).abs() < 1e-9,
+                "point on point samples, n {n}: yaw error {e}, trapezoid {expected}"
+            );
+            let textbook = dt * dt / 12.0 * WOBBLE_A * a * a * t;
+            assert!(e.abs() <= textbook + 1e-12, "n {n}: {e} above {textbook}");
+        }
+        let (yaw, pos) = max_abs(&trapezoid);
+        assert!(
+            yaw <= bound + 1e-12,
+            "point on point samples: yaw error {yaw}, bound {bound}"
+        );
+        assert!(pos < 1e-8, "point on point samples: position error {pos}");
+
+        let riemann = wobble_errors(ImuSampleModel::IntervalMean, &msgs);
+        for &(n, e, _) in &riemann {
+            let nf = n as f64;
+            let sum = WOBBLE_A * dt * (nf * th).sin() * ((nf + 1.0) * th).sin() / th.sin();
+            let expected = sum - wobble_yaw(nf * dt);
+            assert!(
+                (e - expected).abs() < 1e-9,
+                "interval_mean on point samples, n {n}: yaw error {e}, Riemann {expected}"
+            );
+        }
+        let (yaw, pos) = max_abs(&riemann);
+        assert!(
+            yaw > 5.0 * bound,
+            "interval_mean on point samples: yaw error {yaw} ≤ 5·{bound}"
+        );
+        assert!(
+            pos < 1e-8,
+            "interval_mean on point samples: position error {pos}"
+        );
     }
 
     #[test]

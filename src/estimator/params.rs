@@ -26,6 +26,17 @@ impl EstimatorKind {
     }
 }
 
+/// What an IMU message's angular velocity and acceleration stand for.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ImuSampleModel {
+    /// The mean over the interval since the previous message (IMUs that output
+    /// strapdown-integrated increments, as the Xsens MTi family): held constant over it.
+    IntervalMean,
+    /// The value at the message's stamp: interpolated linearly between messages.
+    Point,
+}
+
 /// `[estimators]`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -78,6 +89,8 @@ pub struct EifParams {
     pub orientation_correlation_time_s: f64,
     /// Initial velocity uncertainty, m/s.
     pub initial_velocity_sigma_mps: f64,
+    /// How IMU samples are integrated between messages.
+    pub imu_sample_model: ImuSampleModel,
 }
 
 impl Default for EstimatorsParams {

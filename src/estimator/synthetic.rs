@@ -60,6 +60,53 @@ pub fn transforms() -> StaticTransforms {
     t
 }
 
+/// [`transforms`] with the IMU moved to the body origin (its orientation kept): a body
+/// that turns about a vertical axis through its origin then leaves the IMU in place.
+pub fn transforms_imu_at_origin() -> StaticTransforms {
+    let mut t = transforms();
+    let rotation = t.body_from(IMU_FRAME).expect("test frame").rotation;
+    t.insert(
+        IMU_FRAME,
+        Isometry3::from_parts(Translation3::identity(), rotation),
+    );
+    t
+}
+
+/// A noise-free IMU message in [`IMU_FRAME`]: angular velocity `w` (rad/s) and specific
+/// force `f` (m/s²) in the IMU frame, an optional AHRS `world_from_imu`; the covariances
+/// are those [`Noise::mti300_rtk`] reports.
+pub fn imu_msg(
+    stamp: Nanos,
+    w: Vector3<f64>,
+    f: Vector3<f64>,
+    orientation: Option<UnitQuaternion<f64>>,
+) -> ImuMsg {
+    let rep = Noise::mti300_rtk();
+    ImuMsg {
+        stamp,
+        frame_id: FrameId::new(IMU_FRAME),
+        orientation,
+        orientation_covariance: diag(&rep.ahrs),
+        angular_velocity: w,
+        angular_velocity_covariance: Matrix3::identity() * rep.gyro_per_sample.powi(2),
+        linear_acceleration: f,
+        linear_acceleration_covariance: Matrix3::identity() * rep.accel_per_sample.powi(2),
+    }
+}
+
+/// A noise-free RTK fix in [`ANTENNA_FRAME`] at the ENU position `p_ant` (m), with the
+/// covariance [`Noise::mti300_rtk`] reports.
+pub fn gnss_fix(stamp: Nanos, p_ant: &Vector3<f64>) -> GnssFixMsg {
+    let rep = Noise::mti300_rtk();
+    GnssFixMsg {
+        stamp,
+        frame_id: FrameId::new(ANTENNA_FRAME),
+        status: FixStatus::RtkFixed,
+        position: origin().geodetic_from_enu(p_ant),
+        position_covariance: diag(&Vector3::new(rep.gnss_h, rep.gnss_h, rep.gnss_v)),
+    }
+}
+
 /// Body kinematics at one instant, world frame.
 #[derive(Clone, Debug)]
 pub struct Kin {

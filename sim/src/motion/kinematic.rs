@@ -94,10 +94,8 @@
 //! skid-steer robots do.
 
 use super::MotionModel;
-use crate::params::{
-    MotionModelKind, MotionParams, ParamError, require_in, require_non_negative, require_positive,
-};
-use crate::robot::RobotGeometry;
+use crate::params::{MotionParams, ParamError, require_in, require_non_negative, require_positive};
+use crate::robot::{DriveKinematics, RobotGeometry};
 use crate::route::Route;
 use crate::truth::TruthSample;
 use crate::world::Surface;
@@ -179,6 +177,8 @@ struct Config {
     track_slip: f64,
     track_width_m: f64,
     ride_height_m: f64,
+    left_radius_m: f64,
+    right_radius_m: f64,
     still_after: Nanos,
 }
 
@@ -232,8 +232,10 @@ pub struct KinematicSkidSteer<S: Surface> {
 impl<S: Surface> KinematicSkidSteer<S> {
     /// A robot at the start of `route`, at rest, facing along it, from time `start`.
     ///
-    /// Fails with the `motion.*` path of the first unusable parameter (`route` for a
-    /// route with fewer than two points, `robot` for impossible drive geometry).
+    /// Fails with the `motion.*` path of the first unusable parameter (`motion.model`
+    /// for a route that reverses, i.e. has cusps: this model only drives forward;
+    /// `route` for a route with fewer than two points, `robot` for impossible drive
+    /// geometry).
     pub fn new(
         params: &MotionParams,
         route: Route,
@@ -241,6 +243,13 @@ impl<S: Surface> KinematicSkidSteer<S> {
         geometry: &RobotGeometry,
         start: Nanos,
     ) -> Result<Self, ParamError> {
+        if !route.cusps_m.is_empty() {
+            return Err(ParamError::new(
+                "motion.model",
+                "`rapier` for a route that reverses (route.waypoints.there_and_back)",
+                "kinematic",
+            ));
+        }
         let cfg = validate(params, geometry)?;
         let consistent = route.len() >= 2
             && route.arc_length_m.len() == route.len()
@@ -484,8 +493,12 @@ impl<S: Surface> KinematicSkidSteer<S> {
             acceleration_in_world: f.foot_acc + n_ddot * rho,
             angular_velocity_in_body: f.omega_body,
             angular_acceleration_in_body: alpha,
-            track_speed_left_mps: ground_speed - differential,
-            track_speed_right_mps: ground_speed + differential,
+            drive_speeds_radps: [
+                (ground_speed - differential) / c.left_radius_m,
+                (ground_speed + differential) / c.right_radius_m,
+                0.0,
+                0.0,
+            ],
             odometer_m,
         }
     }
@@ -552,9 +565,6 @@ fn rk4(s: &State, c: &Command, tau: f64, h: f64) -> State {
 
 /// Checks the parameters and derives the model's constants.
 fn validate(p: &MotionParams, geometry: &RobotGeometry) -> Result<Config, ParamError> {
-    match p.model {
-        MotionModelKind::Kinematic => {}
-    }
     let step_hz = require_in("motion.step_hz", p.step_hz, f64::MIN_POSITIVE, MAX_STEP_HZ)?;
     let step = Nanos::period_of_hz(step_hz);
     let controller_hz = require_positive("motion.controller_hz", p.controller_hz)?;
@@ -610,6 +620,19 @@ fn validate(p: &MotionParams, geometry: &RobotGeometry) -> Result<Config, ParamE
             geometry.track_width_m,
         ));
     }
+    let DriveKinematics::SkidSteer {
+        left_radius_m,
+        right_radius_m,
+        ..
+    } = geometry.kinematics
+    else {
+        return Err(ParamError::new(
+            "motion.model",
+            "`rapier` for a robot that is not skid-steered (the kinematic model drives \
+             tracks only)",
+            "kinematic",
+        ));
+    };
     if !(geometry.ride_height_m.is_finite() && geometry.ride_height_m >= 0.0) {
         return Err(ParamError::new(
             "robot",
@@ -641,6 +664,8 @@ fn validate(p: &MotionParams, geometry: &RobotGeometry) -> Result<Config, ParamE
         track_slip,
         track_width_m: geometry.track_width_m,
         ride_height_m: geometry.ride_height_m,
+        left_radius_m,
+        right_radius_m,
         still_after: Nanos::from_secs_f64(still_after),
     })
 }
@@ -743,13 +768,31 @@ mod tests {
 
     const START: Nanos = Nanos(1_631_696_400_000_000_000);
 
+    /// Sprocket pitch radius of the test geometry, m.
+    const SPROCKET_M: f64 = 0.1;
+
     fn geometry() -> RobotGeometry {
         RobotGeometry {
             track_width_m: 0.6,
             ride_height_m: 0.18,
             footprint_length_m: 1.1,
             footprint_width_m: 0.8,
+            kinematics: DriveKinematics::SkidSteer {
+                track_width_m: 0.6,
+                left_radius_m: SPROCKET_M,
+                right_radius_m: SPROCKET_M,
+            },
         }
+    }
+
+    /// Left track surface speed, m/s.
+    fn left(s: &TruthSample) -> f64 {
+        s.drive_speeds_radps[0] * SPROCKET_M
+    }
+
+    /// Right track surface speed, m/s.
+    fn right(s: &TruthSample) -> f64 {
+        s.drive_speeds_radps[1] * SPROCKET_M
     }
 
     fn layout(length_m: f64) -> RowLayout {
@@ -781,6 +824,7 @@ mod tests {
             waypoints: WaypointsParams {
                 points: vec![[0.0, 0.0], to],
                 closed: false,
+                there_and_back: false,
             },
             ..RouteParams::default()
         };
@@ -816,14 +860,7 @@ mod tests {
         ] {
             v.extend(x.iter().map(|x| x.to_bits()));
         }
-        v.extend(
-            [
-                s.track_speed_left_mps,
-                s.track_speed_right_mps,
-                s.odometer_m,
-            ]
-            .map(f64::to_bits),
-        );
+        v.extend([left(s), right(s), s.odometer_m].map(f64::to_bits));
         v
     }
 
@@ -884,6 +921,7 @@ mod tests {
             waypoints: WaypointsParams {
                 points: vec![[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]],
                 closed: true,
+                there_and_back: false,
             },
             ..RouteParams::default()
         };
@@ -956,17 +994,9 @@ mod tests {
             max_turn = max_turn.max(distance_to_route(&route, &xy));
             if let Some(q) = &prev {
                 let h = (s.stamp - q.stamp).as_secs_f64();
-                naive_yaw += h
-                    * 0.5
-                    * ((s.track_speed_right_mps - s.track_speed_left_mps)
-                        + (q.track_speed_right_mps - q.track_speed_left_mps))
+                naive_yaw += h * 0.5 * ((right(&s) - left(&s)) + (right(q) - left(q)))
                     / geometry().track_width_m;
-                naive_dist += h
-                    * 0.25
-                    * (s.track_speed_right_mps
-                        + s.track_speed_left_mps
-                        + q.track_speed_right_mps
-                        + q.track_speed_left_mps);
+                naive_dist += h * 0.25 * (right(&s) + left(&s) + right(q) + left(q));
                 path += (pos - q.world_from_body.translation.vector).norm();
                 let (_, _, yaw0) = q.world_from_body.rotation.euler_angles();
                 let (_, _, yaw1) = s.world_from_body.rotation.euler_angles();
@@ -1033,8 +1063,8 @@ mod tests {
             assert_eq!(s.acceleration_in_world, Vector3::zeros());
             assert_eq!(s.angular_velocity_in_body, Vector3::zeros());
             assert_eq!(s.angular_acceleration_in_body, Vector3::zeros());
-            assert_eq!(s.track_speed_left_mps, 0.0);
-            assert_eq!(s.track_speed_right_mps, 0.0);
+            assert_eq!(left(&s), 0.0);
+            assert_eq!(right(&s), 0.0);
             assert_eq!(s.odometer_m, 0.0);
             assert_eq!(s.world_from_body, first.world_from_body);
             t += Nanos::from_millis(7);
@@ -1267,6 +1297,7 @@ mod tests {
             points: vec![Vector2::zeros()],
             arc_length_m: vec![0.0],
             curvature_per_m: vec![0.0],
+            cusps_m: Vec::new(),
         };
         let e =
             KinematicSkidSteer::new(&MotionParams::default(), short, flat(), &geometry(), START);

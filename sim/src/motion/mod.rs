@@ -4,7 +4,10 @@
 //! not depend on which other times were queried (the integrator steps on its own fixed
 //! grid), so adding or removing a sensor never changes the trajectory.
 //!
-//! Models so far:
+//! Models:
+//! - [`Dynamic`] (default): a [`crate::physics::Physics`] backend (rapier3d) driven by the
+//!   route follower of [`crate::control`]: rigid-body dynamics with track and mecanum
+//!   ground contact, slip, vibration and collisions.
 //! - [`KinematicSkidSteer`]: a terrain-following tracked robot (pitch and roll from the
 //!   ground under its footprint) following a [`crate::route::Route`] with pure pursuit.
 //!   Its velocity, acceleration and angular velocity are the exact derivatives of its
@@ -31,12 +34,36 @@
 //! # Ok::<(), vinebench_sim::params::ParamError>(())
 //! ```
 
+pub mod dynamic;
 pub mod kinematic;
+pub mod tracking;
 
+pub use dynamic::Dynamic;
 pub use kinematic::KinematicSkidSteer;
+pub use tracking::{RobotMetrics, RouteTracking};
 
+use crate::physics::CollisionEvent;
 use crate::truth::TruthSample;
+use serde::Serialize;
 use vinebench_msgs::Nanos;
+
+/// How a run's motion ended, as of the latest [`MotionModel::advance_to`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum MotionOutcome {
+    /// Still going.
+    Running,
+    /// The route is complete and the robot stood still for the final stand-still.
+    Completed,
+    /// The robot made no progress along its route for `physics.stuck_timeout_s` while it
+    /// should have been driving.
+    Stuck {
+        /// When the run gave up, s after the start.
+        at_s: f64,
+        /// Arc length reached along the route, m.
+        progress_m: f64,
+    },
+}
 
 /// Something that moves the robot and knows its true state.
 pub trait MotionModel {
@@ -50,4 +77,16 @@ pub trait MotionModel {
     fn finished(&self) -> bool;
     /// Expected total duration of the run (route plus stand-stills), for progress bars.
     fn expected_duration(&self) -> Nanos;
+    /// How the motion ended (or [`MotionOutcome::Running`]).
+    fn outcome(&self) -> MotionOutcome {
+        if self.finished() {
+            MotionOutcome::Completed
+        } else {
+            MotionOutcome::Running
+        }
+    }
+    /// Contacts with obstacles so far (none for models without collision geometry).
+    fn collisions(&self) -> &[CollisionEvent] {
+        &[]
+    }
 }

@@ -276,9 +276,14 @@ pub(crate) mod test_support {
     /// 2021-09-15T09:00:00Z plus 37 ms (deliberately not on a 100 ms boundary).
     pub const START: Nanos = Nanos(1_631_696_400_037_000_000);
 
-    /// The built-in robot at the defaults' origin.
+    /// The built-in tracked robot at the defaults' origin.
     pub fn ctx(seed: u64) -> SensorContext {
-        let robot = RobotModel::builtin("tracked-sensorbox").unwrap();
+        ctx_for("tracked-sensorbox", seed)
+    }
+
+    /// A built-in robot (`tracked-sensorbox`, `mecanum-rover`) at the defaults' origin.
+    pub fn ctx_for(robot: &str, seed: u64) -> SensorContext {
+        let robot = RobotModel::builtin(robot).unwrap();
         let origin = Geodetic {
             lat_deg: 40.4545,
             lon_deg: 17.9085,
@@ -308,11 +313,13 @@ pub(crate) mod test_support {
             acceleration_in_world: Vector3::zeros(),
             angular_velocity_in_body: Vector3::zeros(),
             angular_acceleration_in_body: Vector3::zeros(),
-            track_speed_left_mps: 0.0,
-            track_speed_right_mps: 0.0,
+            drive_speeds_radps: [0.0; crate::robot::MAX_DRIVE_JOINTS],
             odometer_m: 0.0,
         }
     }
+
+    /// Sprocket pitch radius of the built-in tracked robot, m.
+    pub const SPROCKET_M: f64 = 0.1;
 
     /// Drive parameters of the synthetic truth: what the encoders see for a body motion.
     #[derive(Clone, Copy)]
@@ -360,8 +367,7 @@ pub(crate) mod test_support {
             acceleration_in_world: speed * speed / radius * Vector3::new(-sn, cs, 0.0),
             angular_velocity_in_body: Vector3::new(0.0, 0.0, omega),
             angular_acceleration_in_body: Vector3::zeros(),
-            track_speed_left_mps: l,
-            track_speed_right_mps: r,
+            drive_speeds_radps: [l / SPROCKET_M, r / SPROCKET_M, 0.0, 0.0],
             odometer_m: speed * s,
         }
     }
@@ -382,8 +388,7 @@ pub(crate) mod test_support {
             acceleration_in_world: Vector3::zeros(),
             angular_velocity_in_body: Vector3::zeros(),
             angular_acceleration_in_body: Vector3::zeros(),
-            track_speed_left_mps: l,
-            track_speed_right_mps: r,
+            drive_speeds_radps: [l / SPROCKET_M, r / SPROCKET_M, 0.0, 0.0],
             odometer_m: speed * s,
         }
     }
