@@ -452,7 +452,7 @@ pub struct WheelOdomParams {
     pub rate_hz: f64,
     /// Reception delay, ms.
     pub latency_ms: f64,
-    /// Track speed noise (1σ), m/s.
+    /// Encoder noise per drive joint as surface speed (1σ), m/s.
     pub speed_sigma_mps: f64,
 }
 default_from_section!(WheelOdomParams, "sensors.wheel_odom");

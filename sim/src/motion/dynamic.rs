@@ -34,9 +34,7 @@
 
 use super::{MotionModel, MotionOutcome};
 use crate::control::{FollowPhase, PlanarState, RouteFollower, TwistCommand};
-use crate::params::{
-    MotionParams, ParamError, PhysicsParams, require_in, require_non_negative, require_positive,
-};
+use crate::params::{MotionParams, ParamError, PhysicsParams, require_in};
 use crate::physics::{CollisionEvent, Physics};
 use crate::robot::{Drive, DriveKinematics, MAX_DRIVE_JOINTS, RobotModel};
 use crate::route::Route;
@@ -247,23 +245,11 @@ impl<P: Physics> Dynamic<P> {
                 step_hz,
             ));
         }
-        let controller_hz = require_positive("motion.controller_hz", params.controller_hz)?;
-        let ratio = step_hz / controller_hz;
-        let control_every = ratio.round();
-        if !(control_every >= 1.0 && (ratio - control_every).abs() <= 1e-9 * ratio) {
-            return Err(ParamError::new(
-                "motion.controller_hz",
-                format!("a rate that divides motion.step_hz = {step_hz} Hz (whole steps per tick)"),
-                controller_hz,
-            ));
-        }
-        let control_every = control_every as u64;
+        let control_every = super::steps_per_tick(step_hz, params.controller_hz)?;
         let step_s = step.as_secs_f64();
         let period_s = step_s * control_every as f64;
-        let still_before = require_non_negative("motion.still_before_s", params.still_before_s)?;
-        let still_after = require_non_negative("motion.still_after_s", params.still_after_s)?;
-        require_in("motion.still_before_s", still_before, 0.0, 1e6)?;
-        require_in("motion.still_after_s", still_after, 0.0, 1e6)?;
+        let still_before = require_in("motion.still_before_s", params.still_before_s, 0.0, 1e6)?;
+        let still_after = require_in("motion.still_after_s", params.still_after_s, 0.0, 1e6)?;
         let follower = RouteFollower::new(route, params, robot.drive.is_holonomic(), period_s)?;
         let sinkage = static_sinkage_m(robot, gravity_mps2);
         let start_xy = follower.route().points[0];

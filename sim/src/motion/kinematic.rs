@@ -567,17 +567,7 @@ fn rk4(s: &State, c: &Command, tau: f64, h: f64) -> State {
 fn validate(p: &MotionParams, geometry: &RobotGeometry) -> Result<Config, ParamError> {
     let step_hz = require_in("motion.step_hz", p.step_hz, f64::MIN_POSITIVE, MAX_STEP_HZ)?;
     let step = Nanos::period_of_hz(step_hz);
-    let controller_hz = require_positive("motion.controller_hz", p.controller_hz)?;
-    let ratio = step_hz / controller_hz;
-    let control_every = ratio.round();
-    if !(control_every >= 1.0 && (ratio - control_every).abs() <= 1e-9 * ratio) {
-        return Err(ParamError::new(
-            "motion.controller_hz",
-            format!("a rate that divides motion.step_hz = {step_hz} Hz (whole steps per tick)"),
-            controller_hz,
-        ));
-    }
-    let control_every = control_every as u64;
+    let control_every = super::steps_per_tick(step_hz, p.controller_hz)?;
     let step_s = step.as_secs_f64();
     let tau_s = require_positive("motion.response_time_s", p.response_time_s)?;
     if tau_s < 2.0 * step_s {

@@ -47,6 +47,22 @@ use crate::truth::TruthSample;
 use serde::Serialize;
 use vinebench_msgs::Nanos;
 
+/// Steps per controller tick: `motion.step_hz / motion.controller_hz`, which must be a
+/// whole number (commands change only on the integration grid).
+pub fn steps_per_tick(step_hz: f64, controller_hz: f64) -> Result<u64, crate::params::ParamError> {
+    let controller_hz = crate::params::require_positive("motion.controller_hz", controller_hz)?;
+    let ratio = step_hz / controller_hz;
+    let every = ratio.round();
+    if !(every >= 1.0 && (ratio - every).abs() <= 1e-9 * ratio) {
+        return Err(crate::params::ParamError::new(
+            "motion.controller_hz",
+            format!("a rate that divides motion.step_hz = {step_hz} Hz (whole steps per tick)"),
+            controller_hz,
+        ));
+    }
+    Ok(every as u64)
+}
+
 /// How a run's motion ended, as of the latest [`MotionModel::advance_to`].
 #[derive(Clone, Debug, PartialEq, Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]

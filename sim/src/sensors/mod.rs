@@ -9,7 +9,7 @@
 //! | IMU + AHRS (Xsens MTi-300) | [`imu`] | `sensors.imu` | `start + i/rate` | [`Message::Imu`](vinebench_msgs::Message::Imu) |
 //! | GNSS (u-blox ZED-F9P) | [`gnss`] | `sensors.gnss` | multiples of the period since the Unix epoch | `GnssFix`, `GnssVelocity` |
 //! | tracking camera (T265) | [`tracking_camera`] | `sensors.tracking_camera` | `start + offset + i/rate` | `TrackingOdom` |
-//! | track odometry | [`wheel_odom`] | `sensors.wheel_odom` | `start + i/rate` | `WheelOdom` |
+//! | track or wheel odometry | [`wheel_odom`] | `sensors.wheel_odom` | `start + i/rate` | `WheelOdom` |
 //!
 //! Shared noise processes live in [`noise`]; [`EpochClock`] gives drift-free sample times.
 
