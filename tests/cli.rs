@@ -73,6 +73,26 @@ fn malformed_scenarios_exit_2_with_file_line_column_and_field() {
             "[sensors.imu]\nframe = \"lidar\"\n",
             "frame.toml:2:9: `sensors.imu.frame`",
         ),
+        (
+            "physics.toml",
+            "[physics]\nripple_m = 0.5\n",
+            "physics.toml:2:12: `physics.ripple_m`: expected a number in [0, 0.02]",
+        ),
+        (
+            "kinematic-rover.toml",
+            "[robot]\nmodel = \"mecanum-rover\"\n[motion]\nmodel = \"kinematic\"\n",
+            "kinematic-rover.toml:4:9: `motion.model`: expected `rapier` for a robot that is not skid-steered",
+        ),
+        (
+            "heading.toml",
+            "[motion]\nheading = \"fixed\"\n",
+            "heading.toml:2:11: `motion.heading`",
+        ),
+        (
+            "urdf.toml",
+            "[robot]\nurdf = \"nowhere.urdf\"\n",
+            "nowhere.urdf: cannot read the URDF",
+        ),
     ];
     for (name, text, want) in cases {
         let path = write(dir.path(), name, text);

@@ -58,6 +58,32 @@ fn the_defaults_run_as_a_scenario() {
 }
 
 #[test]
+fn the_kinematic_model_still_runs_a_scenario() {
+    // The short test loop with the terrain-following kinematic model instead of physics:
+    // same expectations, and a robot that follows its route exactly.
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/short-loop.toml");
+    let text = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("[motion]\n", "[motion]\nmodel = \"kinematic\"\n");
+    assert!(text.contains("model = \"kinematic\""));
+    let sc = LoadedScenario::from_str(&text, "short-loop-kinematic.toml").unwrap();
+    let sim = simulate(&sc, None).unwrap_or_else(|e| panic!("{e}"));
+    assert!(sim.route_completed);
+    let scores = score(&sc, &sim);
+    let failed: Vec<String> = evaluate(&sc, &scores)
+        .iter()
+        .filter(|r| !r.holds)
+        .map(|r| r.to_string())
+        .collect();
+    assert!(failed.is_empty(), "{}", failed.join("\n"));
+    assert!(
+        sim.robot.max_cross_track_m < 0.05,
+        "{}",
+        sim.robot.max_cross_track_m
+    );
+}
+
+#[test]
 fn every_shipped_scenario_states_expectations() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
     for e in std::fs::read_dir(&dir).unwrap() {
