@@ -25,7 +25,7 @@ use vinebench_sim::motion::{
     Dynamic, KinematicSkidSteer, MotionModel, MotionOutcome, RobotMetrics, RouteTracking,
 };
 use vinebench_sim::params::{HeadingMode, MotionModelKind};
-use vinebench_sim::physics::rapier::{HeightGrid, obstacles_of};
+use vinebench_sim::physics::rapier::{HeightGrid, MIN_HEIGHTFIELD_CELL_M, obstacles_of};
 use vinebench_sim::physics::{CollisionEvent, RapierPhysics, Scene};
 use vinebench_sim::robot::{RobotError, RobotModel};
 use vinebench_sim::route::build_route;
@@ -246,7 +246,9 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         MotionModelKind::Rapier => {
             let (lo, hi) = world.terrain.domain();
             let cell = s.physics.heightfield_cell_m;
-            let grid = (cell.is_finite() && cell >= 0.01)
+            // An unusable cell size is reported by the backend's parameter check; do not
+            // sample a grid of it first.
+            let grid = (cell.is_finite() && cell >= MIN_HEIGHTFIELD_CELL_M)
                 .then(|| HeightGrid::sample(&world.terrain, lo, hi, cell));
             let obstacles = obstacles_of(&world);
             Box::new(
