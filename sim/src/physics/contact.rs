@@ -109,14 +109,13 @@ pub struct GroundProbe {
 }
 
 impl GroundProbe {
-    /// Relaxation length `σ` for motion at `v_along` along the rolling direction.
-    fn relaxation_m(&self) -> impl Fn(f64) -> f64 + '_ {
-        move |v_along: f64| {
-            if self.along_m == 0.0 {
-                self.half_run_m.max(MIN_RELAXATION_M)
-            } else {
-                (self.half_run_m - v_along.signum() * self.along_m).max(MIN_RELAXATION_M)
-            }
+    /// Relaxation length `σ` for motion at `v_along` along the rolling direction: the
+    /// distance from the leading edge of the track (a wheel: `half_run_m`).
+    fn relaxation_m(&self, v_along: f64) -> f64 {
+        if self.along_m == 0.0 {
+            self.half_run_m.max(MIN_RELAXATION_M)
+        } else {
+            (self.half_run_m - v_along.signum() * self.along_m).max(MIN_RELAXATION_M)
         }
     }
 }
@@ -288,7 +287,7 @@ impl ContactModel {
             let slip = v_q - t * (joint.radius_m * joint.speed_radps);
             let s = Vector2::new(slip.dot(&e1), slip.dot(&e2));
             let v_along = v_q.dot(&t);
-            let sigma = probe.relaxation_m()(v_along);
+            let sigma = probe.relaxation_m(v_along);
             let lambda = v_along.abs() / sigma;
             let x = lambda * dt;
             // Exact over the step: ξ(dt) = ξ·e^{−λdt} + s·(1 − e^{−λdt})/λ.
