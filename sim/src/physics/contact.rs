@@ -63,8 +63,9 @@
 //! Everything is explicit at the physics step, except the relaxation, which is
 //! integrated exactly over the step (`σ` may be short).
 
+use super::BodyState;
 use crate::world::Surface;
-use nalgebra::{Isometry3, Vector2, Vector3};
+use nalgebra::{Vector2, Vector3};
 
 /// Drive joints beyond this speed count as turning for the joint friction and rolling
 /// resistance (`tanh(ω/ω_ε)`), rad/s.
@@ -146,19 +147,6 @@ pub struct ProbeState {
     pub penetration_m: f64,
 }
 
-/// The rigid body's kinematics, world frame.
-#[derive(Clone, Debug, PartialEq)]
-pub struct BodyKinematics {
-    /// `world_from_body`.
-    pub world_from_body: Isometry3<f64>,
-    /// Velocity of the body origin, m/s.
-    pub velocity_in_world: Vector3<f64>,
-    /// Angular velocity, rad/s.
-    pub angular_velocity_in_world: Vector3<f64>,
-    /// Centre of mass, m.
-    pub com_in_world: Vector3<f64>,
-}
-
 /// Drive joint kinematics (angle, speed) and rolling radius, per joint.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct JointKinematics {
@@ -228,12 +216,14 @@ impl ContactModel {
             .sum()
     }
 
-    /// The ground's force and torque on the body and its torques on the drive joints,
-    /// from the state at the start of a step of `dt` seconds; advances the shear states.
+    /// The ground's force and torque (about the centre of mass `com_in_world`) on the
+    /// body and its torques on the drive joints, from the state at the start of a step of
+    /// `dt` seconds; advances the shear states.
     pub fn step<S: Surface>(
         &mut self,
         surface: &S,
-        body: &BodyKinematics,
+        body: &BodyState,
+        com_in_world: &Vector3<f64>,
         joints: &[JointKinematics],
         dt: f64,
     ) -> ContactWrench {
@@ -335,7 +325,7 @@ impl ContactModel {
             };
             let force = n * f_n + e1 * f[0] + e2 * f[1] + rolling;
             out.force_in_world += force;
-            out.torque_about_com_in_world += (q - body.com_in_world).cross(&force);
+            out.torque_about_com_in_world += (q - com_in_world).cross(&force);
             if let Some(tau) = out.joint_torque_nm.get_mut(probe.joint) {
                 // The shear force along the rolling direction loads the drive.
                 *tau -= joint.radius_m * (e1 * f[0] + e2 * f[1]).dot(&t);
@@ -422,7 +412,7 @@ impl Motor {
 mod tests {
     use super::*;
     use crate::world::PlaneSurface;
-    use nalgebra::{Translation3, UnitQuaternion};
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
     fn soil() -> SoilParams {
         SoilParams {
@@ -458,24 +448,34 @@ mod tests {
         }
     }
 
-    fn body_at(z: f64, v: Vector3<f64>) -> BodyKinematics {
-        BodyKinematics {
+    fn body_at(z: f64, v: Vector3<f64>) -> BodyState {
+        BodyState {
             world_from_body: Isometry3::translation(0.0, 0.0, z),
             velocity_in_world: v,
             angular_velocity_in_world: Vector3::zeros(),
-            com_in_world: Vector3::new(0.0, 0.0, z),
         }
+    }
+
+    /// One step of `m` for `body`, centre of mass at the body origin.
+    fn step_at<S: Surface>(
+        m: &mut ContactModel,
+        ground: &S,
+        body: &BodyState,
+        joints: &[JointKinematics],
+    ) -> ContactWrench {
+        let com = body.world_from_body.translation.vector;
+        m.step(ground, body, &com, joints, 1e-3)
     }
 
     #[test]
     fn normal_force_is_the_spring_on_flat_and_sloped_ground() {
         let mut m = ContactModel::new(vec![wheel_probe([0.8, 0.8], Vector3::x())], soil());
         // 5 mm into flat ground: 50 N straight up.
-        let w = m.step(
+        let w = step_at(
+            &mut m,
             &flat(),
             &body_at(0.095, Vector3::zeros()),
             &[JointKinematics::default()],
-            1e-3,
         );
         assert!((w.force_in_world - Vector3::new(0.0, 0.0, 50.0)).norm() < 1e-9);
         // On a 10° slope the force is along the surface normal, and the penetration is
@@ -488,16 +488,15 @@ mod tests {
         let n = Vector3::new(-slope.sin(), 0.0, slope.cos());
         let c = n * 0.095;
         let mut m = ContactModel::new(vec![wheel_probe([0.8, 0.8], Vector3::x())], soil());
-        let body = BodyKinematics {
+        let body = BodyState {
             world_from_body: Isometry3::from_parts(
                 Translation3::from(c),
                 UnitQuaternion::identity(),
             ),
             velocity_in_world: Vector3::zeros(),
             angular_velocity_in_world: Vector3::zeros(),
-            com_in_world: c,
         };
-        let w = m.step(&ground, &body, &[JointKinematics::default()], 1e-3);
+        let w = step_at(&mut m, &ground, &body, &[JointKinematics::default()]);
         assert!(
             (w.force_in_world - n * 50.0).norm() < 1e-9,
             "{:?}",
@@ -518,7 +517,7 @@ mod tests {
         // λ = |v|/σ = 0.02/s: relaxation over 100 steps shrinks ξ by 0.2 %.
         let mut f = 0.0;
         for _ in 0..100 {
-            f = m.step(&flat(), &body, &joints, 1e-3).force_in_world.x;
+            f = step_at(&mut m, &flat(), &body, &joints).force_in_world.x;
         }
         let sigma: f64 = 0.05;
         let lambda = 1e-3 / sigma;
@@ -528,20 +527,20 @@ mod tests {
         // Sliding fast: the force saturates at μ₁F_n = 40 N.
         let fast = body_at(0.095, Vector3::new(0.5, 0.0, 0.0));
         for _ in 0..200 {
-            f = m.step(&flat(), &fast, &joints, 1e-3).force_in_world.x;
+            f = step_at(&mut m, &flat(), &fast, &joints).force_in_world.x;
         }
         assert!((f + 40.0).abs() < 1e-9, "{f}");
         // Sideways, μ₂F_n = 25 N; diagonally, on the ellipse.
         let side = body_at(0.095, Vector3::new(0.0, -0.5, 0.0));
         let mut fy = 0.0;
         for _ in 0..1000 {
-            fy = m.step(&flat(), &side, &joints, 1e-3).force_in_world.y;
+            fy = step_at(&mut m, &flat(), &side, &joints).force_in_world.y;
         }
         assert!((fy - 25.0).abs() < 1e-9, "{fy}");
         let diag = body_at(0.095, Vector3::new(0.5, 0.5, 0.0));
         let mut w = ContactWrench::default();
         for _ in 0..400 {
-            w = m.step(&flat(), &diag, &joints, 1e-3);
+            w = step_at(&mut m, &flat(), &diag, &joints);
         }
         let e = (w.force_in_world.x / 40.0).powi(2) + (w.force_in_world.y / 25.0).powi(2);
         assert!((e - 1.0).abs() < 1e-9, "ellipse {e}");
@@ -562,7 +561,7 @@ mod tests {
         }];
         let mut w = ContactWrench::default();
         for _ in 0..2000 {
-            w = m.step(&flat(), &body, &joints, 1e-3);
+            w = step_at(&mut m, &flat(), &body, &joints);
         }
         let expected = 0.8 * 50.0 * 0.05 * i / 0.025;
         assert!((w.force_in_world.x - expected).abs() < 1e-6 * expected.abs().max(1.0));
@@ -581,12 +580,12 @@ mod tests {
         }];
         let across = Vector3::new(1.0, 1.0, 0.0).normalize() * 0.3;
         for _ in 0..100 {
-            let w = m.step(&flat(), &body_at(0.095, across), &joints, 1e-3);
+            let w = step_at(&mut m, &flat(), &body_at(0.095, across), &joints);
             assert!(w.force_in_world.xy().norm() < 1e-12);
         }
         let mut w = ContactWrench::default();
         for _ in 0..500 {
-            w = m.step(&flat(), &body_at(0.095, u * 0.3), &joints, 1e-3);
+            w = step_at(&mut m, &flat(), &body_at(0.095, u * 0.3), &joints);
         }
         let f = w.force_in_world.xy();
         assert!((f.normalize() + u.xy()).norm() < 1e-9 && (f.norm() - 45.0).abs() < 1e-9);

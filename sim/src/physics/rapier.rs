@@ -11,9 +11,7 @@
 //!
 //! rapier's types (glam) stay in this file: everything outside sees nalgebra.
 
-use super::contact::{
-    BodyKinematics, ContactModel, GroundProbe, JointKinematics, Motor, SoilParams,
-};
+use super::contact::{ContactModel, GroundProbe, JointKinematics, Motor, SoilParams};
 use super::{BodyState, CollisionEvent, JointState, Obstacle, Physics};
 use crate::params::{
     ParamError, PhysicsParams, require_in, require_non_negative, require_positive,
@@ -560,14 +558,8 @@ impl<S: Surface> Physics for RapierPhysics<S> {
     }
 
     fn step(&mut self, speed_refs_radps: &[f64; MAX_DRIVE_JOINTS]) {
-        let (pose, com, v_com, omega) = self.kinematics();
-        let origin = pose.translation.vector;
-        let body = BodyKinematics {
-            world_from_body: pose,
-            velocity_in_world: v_com + omega.cross(&(origin - com)),
-            angular_velocity_in_world: omega,
-            com_in_world: com,
-        };
+        let body = self.body();
+        let com = self.kinematics().1;
         let mut joints = [JointKinematics::default(); MAX_DRIVE_JOINTS];
         for (i, m) in self.motors.iter().enumerate() {
             joints[i] = JointKinematics {
@@ -576,9 +568,13 @@ impl<S: Surface> Physics for RapierPhysics<S> {
                 radius_m: self.radii[i],
             };
         }
-        let wrench = self
-            .contact
-            .step(&self.surface, &body, &joints[..self.motors.len()], self.dt);
+        let wrench = self.contact.step(
+            &self.surface,
+            &body,
+            &com,
+            &joints[..self.motors.len()],
+            self.dt,
+        );
         for (i, m) in self.motors.iter_mut().enumerate() {
             m.step(speed_refs_radps[i], wrench.joint_torque_nm[i], self.dt);
         }
