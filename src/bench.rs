@@ -191,6 +191,227 @@ pub fn physics_step_micros(robot: &str, steps: usize, repeats: usize) -> Result<
     Ok(best / steps as f64 * 1e6)
 }
 
+/// Real-time factor of a camera scenario's first `seconds` simulated seconds
+/// (simulation with rendering, noise and every sensor, estimation; no files), best of
+/// `repeats`. The renderer's set-up (geometry, BVH, textures, shadow map) is not timed.
+pub fn camera_scenario_real_time_factor(
+    toml: &str,
+    name: &str,
+    seconds: f64,
+    repeats: usize,
+) -> Result<f64, BenchError> {
+    use crate::runner::{setup, simulate_setup};
+    let mut sc = LoadedScenario::from_str(toml, name)?;
+    sc.scenario.max_duration_s = seconds;
+    sc.scenario.render.debug_png_every = 0;
+    let mut best = f64::INFINITY;
+    let mut simulated = 0.0;
+    for _ in 0..repeats.max(1) {
+        let built = setup(&sc)?;
+        let t0 = Instant::now();
+        let sim = simulate_setup(&sc, built, None)?;
+        best = best.min(t0.elapsed().as_secs_f64());
+        simulated = sim.duration_s;
+    }
+    Ok(simulated / best)
+}
+
+/// The renderer of a `rows`-row default vineyard (rows along east) with `backend`.
+pub fn bench_renderer(
+    rows: u32,
+    backend: vinebench_sim::params::RenderBackend,
+) -> Result<vinebench_sim::render::shade::Renderer, BenchError> {
+    use vinebench_sim::params::{RenderParams, WorldParams};
+    let mut p = WorldParams::default();
+    p.rows.count = rows;
+    p.rows.yaw_deg = 0.0;
+    let world = vinebench_sim::world::World::generate(1, &p)
+        .map_err(|e| BenchError::Setup(e.to_string()))?;
+    let rp = RenderParams {
+        backend,
+        ..RenderParams::default()
+    };
+    vinebench_sim::render::build_renderer(&world, &rp).map_err(|e| BenchError::Setup(e.to_string()))
+}
+
+/// Camera poses of the render benchmarks: 1.2 m up in lanes of the vineyard, looking
+/// along the rows, across them and obliquely.
+pub fn bench_views() -> Vec<nalgebra::Isometry3<f64>> {
+    use nalgebra::{Isometry3, Rotation3};
+    let view = |eye: Vector3<f64>, fwd: Vector3<f64>| {
+        let z = fwd.normalize();
+        let x = z.cross(&Vector3::z()).normalize();
+        let y = z.cross(&x);
+        Isometry3::from_parts(
+            eye.into(),
+            UnitQuaternion::from_rotation_matrix(&Rotation3::from_basis_unchecked(&[x, y, z])),
+        )
+    };
+    vec![
+        view(Vector3::new(10.0, 3.75, 1.2), Vector3::new(1.0, 0.0, -0.1)),
+        view(Vector3::new(60.0, 6.25, 1.2), Vector3::new(0.0, 1.0, -0.2)),
+        view(
+            Vector3::new(90.0, 8.75, 1.2),
+            Vector3::new(-1.0, 0.6, -0.15),
+        ),
+        view(
+            Vector3::new(118.0, 1.25, 1.2),
+            Vector3::new(-1.0, 0.0, 0.05),
+        ),
+    ]
+}
+
+/// Primary rays per second (millions) of `renderer`'s ray caster at 640×480 over
+/// [`bench_views`], 8×8-tile packets on all rayon threads, first hit only; best of
+/// `repeats`.
+pub fn cast_mrays(renderer: &vinebench_sim::render::shade::Renderer, repeats: usize) -> f64 {
+    use rayon::prelude::*;
+    use vinebench_sim::render::camera::Intrinsics;
+    use vinebench_sim::render::trace::{Hit, PACKET_SIZE, RayPacket};
+    let intr = Intrinsics::from_hfov(640, 480, 87.0, Default::default());
+    let rays = intr.pixel_rays();
+    let views = bench_views();
+    let origin = renderer.scene().trace.origin_in_world;
+    let caster = renderer.caster();
+    let mut best = f64::INFINITY;
+    for _ in 0..repeats.max(1) {
+        let t0 = Instant::now();
+        for pose in &views {
+            let o = pose.translation.vector - origin;
+            let r = pose.rotation.to_rotation_matrix();
+            let hits: usize = (0..60u32)
+                .into_par_iter()
+                .map(|ty| {
+                    let mut cam = [[0.0f32; PACKET_SIZE]; 3];
+                    let mut p = RayPacket {
+                        origin: [o.x as f32, o.y as f32, o.z as f32],
+                        dir: [[0.0; PACKET_SIZE]; 3],
+                        len: 0,
+                        t_min: 0.0,
+                        t_max: 200.0,
+                    };
+                    let mut hits = [Hit::MISS; PACKET_SIZE];
+                    let mut n_hit = 0;
+                    for tx in 0..80u32 {
+                        let n = rays.fill_tile(tx * 8, ty * 8, 8, 8, &mut cam);
+                        for (k, dir) in p.dir.iter_mut().enumerate() {
+                            let row = [r[(k, 0)] as f32, r[(k, 1)] as f32, r[(k, 2)] as f32];
+                            for (l, d) in dir[..n].iter_mut().enumerate() {
+                                *d = row[0] * cam[0][l] + row[1] * cam[1][l] + row[2] * cam[2][l];
+                            }
+                        }
+                        p.len = n;
+                        caster.cast_packet(&p, &mut hits);
+                        n_hit += hits[..n].iter().filter(|h| h.is_hit()).count();
+                    }
+                    n_hit
+                })
+                .sum();
+            black_box(hits);
+        }
+        best = best.min(t0.elapsed().as_secs_f64());
+    }
+    (views.len() * 640 * 480) as f64 / best / 1e6
+}
+
+/// Shaded 640×480 frames per second of `renderer` over [`bench_views`] (ray casting,
+/// textures, shadow map, sky; no noise or encoding), best of `repeats`.
+pub fn shaded_frames_per_second(
+    renderer: &vinebench_sim::render::shade::Renderer,
+    repeats: usize,
+) -> f64 {
+    use vinebench_sim::render::camera::Intrinsics;
+    use vinebench_sim::render::shade::Frame;
+    let intr = Intrinsics::from_hfov(640, 480, 87.0, Default::default());
+    let rays = intr.pixel_rays();
+    let views = bench_views();
+    let mut frame = Frame::new(640, 480);
+    let mut best = f64::INFINITY;
+    for _ in 0..repeats.max(1) {
+        let t0 = Instant::now();
+        for pose in &views {
+            renderer.render(&rays, pose, (1.0 / intr.fx) as f32, 200.0, &mut frame);
+        }
+        best = best.min(t0.elapsed().as_secs_f64());
+    }
+    views.len() as f64 / best
+}
+
+/// The tracked camera scenario (three RGB-D cameras), embedded.
+pub const CAMERA_ROW_TOML: &str = include_str!("../scenarios/camera-row.toml");
+/// The rover camera scenario (two stereo pairs and a tag camera), embedded.
+pub const ROVER_OCCLUDER_TOML: &str = include_str!("../scenarios/rover-occluder.toml");
+
+/// The rendering figures: ray casting and shading speed on a 10-row × 120 m vineyard,
+/// renderer memory, and the real-time factor of both camera rigs.
+pub fn render_figures(quick: bool) -> Result<Vec<Figure>, BenchError> {
+    use vinebench_sim::params::RenderBackend;
+    let repeats = if quick { 1 } else { 3 };
+    let seconds = if quick { 4.0 } else { 10.0 };
+    let mut out = Vec::new();
+    let t0 = Instant::now();
+    let bvh = bench_renderer(10, RenderBackend::Bvh)?;
+    let build_s = t0.elapsed().as_secs_f64();
+    out.push(Figure {
+        name: "render: 10-row x 120 m vineyard, renderer build (geometry, BVH, textures, shadow map)",
+        value: build_s,
+        unit: "s",
+        target: None,
+    });
+    out.push(Figure {
+        name: "render: 10-row x 120 m vineyard, renderer memory (scene, BVH, textures, shadow map)",
+        value: bvh.memory_bytes() as f64 / 1e6,
+        unit: "MB",
+        target: None,
+    });
+    out.push(Figure {
+        name: "render: primary rays, built-in BVH, 640x480 first hit, all threads",
+        value: cast_mrays(&bvh, repeats),
+        unit: "Mrays/s",
+        target: Some(20.0),
+    });
+    #[cfg(feature = "embree")]
+    {
+        let embree = bench_renderer(10, RenderBackend::Embree)?;
+        out.push(Figure {
+            name: "render: primary rays, Embree 3, 640x480 first hit, all threads",
+            value: cast_mrays(&embree, repeats),
+            unit: "Mrays/s",
+            target: None,
+        });
+    }
+    out.push(Figure {
+        name: "render: shaded 640x480 frames (cast + textures + shadows), all threads",
+        value: shaded_frames_per_second(&bvh, repeats),
+        unit: "frames/s",
+        target: Some(90.0),
+    });
+    drop(bvh);
+    out.push(Figure {
+        name: "camera-row: tracked rig, 3 RGB-D 640x480 at 15 Hz + IMU/GNSS/physics, real-time factor",
+        value: camera_scenario_real_time_factor(
+            CAMERA_ROW_TOML,
+            "scenarios/camera-row.toml",
+            seconds,
+            1,
+        )?,
+        unit: "x",
+        target: Some(2.0),
+    });
+    out.push(Figure {
+        name: "rover-occluder: 2 stereo pairs 752x480 at 15 Hz + 1920x1080 tag camera at 5 Hz, real-time factor",
+        value: camera_scenario_real_time_factor(
+            ROVER_OCCLUDER_TOML,
+            "scenarios/rover-occluder.toml",
+            seconds,
+            1,
+        )?,
+        unit: "x",
+        target: Some(1.0),
+    });
+    Ok(out)
+}
+
 /// Runs every figure.
 pub fn run_all(quick: bool) -> Result<Vec<Figure>, BenchError> {
     let (steps, repeats) = if quick { (200_000, 2) } else { (2_000_000, 5) };

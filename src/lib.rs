@@ -15,6 +15,7 @@
 pub mod bench;
 pub mod estimator;
 pub mod expect;
+pub mod images;
 pub mod report;
 pub mod runner;
 pub mod scenario;

@@ -95,11 +95,15 @@ enum Command {
         vinebench score --ref ground_truth.tum estimate_eif.tum --align\n\
         equals: evo_ape tum ground_truth.tum estimate_eif.tum --t_max_diff 0.01 -a")]
     Score(ScoreArgs),
-    /// Measure speed: EIF predictions per second and simulation real-time factor.
+    /// Measure speed: EIF, physics, ray casting, rendering and real-time factors.
     Bench {
         /// Fewer repetitions (a quick look, noisier figures).
         #[arg(long)]
         quick: bool,
+        /// Which figures: `all`, `core` (estimator, physics, no-camera scenario) or
+        /// `render` (ray casting, shading, camera scenarios).
+        #[arg(long, default_value = "all", value_parser = ["all", "core", "render"])]
+        only: String,
     },
 }
 
@@ -190,9 +194,15 @@ fn dispatch(cmd: Command) -> Result<u8> {
             Ok(EXIT_PASS)
         }
         Command::Score(a) => score(&a),
-        Command::Bench { quick } => {
-            eprintln!("measuring (about {} s)...", if quick { 5 } else { 30 });
-            let figures = vinebench::bench::run_all(quick)?;
+        Command::Bench { quick, only } => {
+            eprintln!("measuring (about {} s)...", if quick { 60 } else { 240 });
+            let mut figures = Vec::new();
+            if only != "render" {
+                figures.extend(vinebench::bench::run_all(quick)?);
+            }
+            if only != "core" {
+                figures.extend(vinebench::bench::render_figures(quick)?);
+            }
             println!("| figure | value | target |\n|---|---:|---:|");
             for f in figures {
                 let target = f

@@ -218,6 +218,7 @@ impl RobotReport {
             let obstacle = match &c.obstacle {
                 Obstacle::Post { row, index } => format!("post row {row} #{index}"),
                 Obstacle::Trunk { row, slot } => format!("trunk row {row} slot {slot}"),
+                Obstacle::Occluder { index } => format!("occluder #{index}"),
                 Obstacle::Ground => "ground".to_string(),
             };
             let [x, y, z] = c.robot_position_m.map(|v| {

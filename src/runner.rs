@@ -17,6 +17,7 @@ use std::cmp::Reverse;
 use std::collections::{BTreeMap, BinaryHeap};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 use thiserror::Error;
 use vinebench_msgs::geodesy::{LocalEnu, normal_gravity};
@@ -27,9 +28,10 @@ use vinebench_sim::motion::{
 use vinebench_sim::params::{HeadingMode, MotionModelKind};
 use vinebench_sim::physics::rapier::{HeightGrid, MIN_HEIGHTFIELD_CELL_M, obstacles_of};
 use vinebench_sim::physics::{CollisionEvent, RapierPhysics, Scene};
+use vinebench_sim::render::shade::Renderer;
 use vinebench_sim::robot::{RobotError, RobotModel};
 use vinebench_sim::route::build_route;
-use vinebench_sim::sensors::{SensorContext, SensorModel, build_sensors};
+use vinebench_sim::sensors::{SensorContext, SensorModel, build_cameras, build_sensors};
 use vinebench_sim::world::World;
 
 /// A run that could not be carried out.
@@ -205,6 +207,10 @@ pub struct Setup {
     pub tracking: RouteTracking,
     /// The enabled sensors.
     pub sensors: Vec<Box<dyn SensorModel>>,
+    /// The renderer the cameras share (none without cameras).
+    pub renderer: Option<Arc<Renderer>>,
+    /// Where debug PNGs of camera images go (`[render] debug_png_every`); set by [`run`].
+    pub png_dir: Option<PathBuf>,
     /// The estimation stage.
     pub estimators: EstimatorSet,
 }
@@ -288,7 +294,21 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         static_transforms: robot.static_transforms.clone(),
         geometry: robot.geometry.clone(),
     };
-    let sensors = build_sensors(&s.sensors, &s.faults, &ctx).map_err(|e| sc.param_error(e))?;
+    let mut sensors = build_sensors(&s.sensors, &s.faults, &ctx).map_err(|e| sc.param_error(e))?;
+    vinebench_sim::render::validate(&s.render).map_err(|e| sc.param_error(e))?;
+    let renderer = if s.sensors.cameras.is_empty() {
+        None
+    } else {
+        let r = Arc::new(
+            vinebench_sim::render::build_renderer(&world, &s.render)
+                .map_err(|e| sc.param_error(e))?,
+        );
+        sensors.extend(
+            build_cameras(&s.sensors.cameras, &s.render, &ctx, &r)
+                .map_err(|e| sc.param_error(e))?,
+        );
+        Some(r)
+    };
     let estimator_error = |e: EstimatorError| match e {
         EstimatorError::InvalidParam {
             path,
@@ -318,6 +338,8 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         motion,
         tracking,
         sensors,
+        renderer,
+        png_dir: None,
         estimators,
     })
 }
@@ -349,8 +371,10 @@ pub fn simulate_setup(
         mut tracking,
         mut sensors,
         mut estimators,
+        png_dir,
         ..
     } = built;
+    let mut png = png_dir.map(|d| crate::images::PngDump::new(&d, s.render.debug_png_every));
     let start = sc.start;
 
     // Stop conditions: the route's end, the scenario's hard stop, or a safety limit of
@@ -412,6 +436,9 @@ pub fn simulate_setup(
         }
         for tm in out.drain(..) {
             *messages.entry(tm.msg.topic().to_string()).or_default() += 1;
+            if let (Some(dump), vinebench_msgs::Message::Image(img)) = (png.as_mut(), &tm.msg) {
+                dump.push(img).map_err(io_err(&img_dir(dump)))?;
+            }
             pending.push(Reverse(InFlight { seq, tm }));
             seq += 1;
         }
@@ -498,7 +525,7 @@ pub fn evaluate(sc: &LoadedScenario, scores: &Scores) -> Vec<ExpectationResult> 
 /// Runs a scenario end to end and writes its run folder.
 pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunError> {
     // Every parameter is checked before anything is written.
-    let built = setup(sc)?;
+    let mut built = setup(sc)?;
     let dir = match &opts.out_dir {
         Some(d) => d.clone(),
         None => opts
@@ -506,6 +533,9 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
             .join(format!("{}-{}", sc.scenario.name, utc_stamp())),
     };
     std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+    if sc.scenario.render.debug_png_every > 0 && built.renderer.is_some() {
+        built.png_dir = Some(dir.join("images"));
+    }
     let resolved = dir.join("scenario.resolved.toml");
     std::fs::write(&resolved, sc.resolved_toml()).map_err(io_err(&resolved))?;
 
@@ -552,6 +582,10 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
         report,
         wall_s,
     })
+}
+
+fn img_dir(d: &crate::images::PngDump) -> PathBuf {
+    d.dir().to_path_buf()
 }
 
 /// `YYYYMMDD-HHMMSS` of the current UTC time (names default run folders).

@@ -27,7 +27,7 @@ use vinebench_msgs::Nanos;
 use vinebench_msgs::geodesy::Geodetic;
 use vinebench_sim::params::{
     FaultsParams, MotionParams, ParamError, PhysicsParams, RobotParams, RouteParams, SensorsParams,
-    WorldParams,
+    RenderParams, WorldParams,
 };
 
 /// A complete scenario, every field resolved (scenario file over defaults).
@@ -58,6 +58,8 @@ pub struct Scenario {
     pub route: RouteParams,
     /// `[sensors]`.
     pub sensors: SensorsParams,
+    /// `[render]`.
+    pub render: RenderParams,
     /// `[faults]`.
     pub faults: FaultsParams,
     /// `[estimators]`.

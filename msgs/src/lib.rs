@@ -29,6 +29,9 @@ pub mod time;
 pub mod trajectory;
 
 pub use frames::{FrameId, StaticTransforms};
-pub use msg::{FixStatus, GnssFixMsg, GnssVelocityMsg, ImuMsg, Message, OdometryMsg, TimedMessage};
+pub use msg::{
+    CameraInfoMsg, FixStatus, GnssFixMsg, GnssVelocityMsg, ImageEncoding, ImageMsg, ImuMsg,
+    Message, OdometryMsg, TimedMessage,
+};
 pub use time::Nanos;
 pub use trajectory::{PoseSample, Trajectory};

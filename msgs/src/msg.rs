@@ -8,6 +8,7 @@
 use crate::geodesy::Geodetic;
 use crate::{FrameId, Nanos};
 use nalgebra::{Isometry3, Matrix3, Matrix6, UnitQuaternion, Vector3};
+use std::sync::Arc;
 use thiserror::Error;
 
 /// An IMU sample (`sensor_msgs/Imu`), in the IMU's own frame.
@@ -116,6 +117,81 @@ pub struct OdometryMsg {
     pub twist_covariance: Matrix6<f64>,
 }
 
+/// Pixel layout of an [`ImageMsg`] (the `encoding` strings of `sensor_msgs/Image`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ImageEncoding {
+    /// 8-bit sRGB colour, 3 bytes per pixel (`rgb8`).
+    Rgb8,
+    /// 8-bit grey (`mono8`).
+    Mono8,
+    /// Depth in millimetres, little-endian `u16`, 0 = no measurement (`16UC1`, the
+    /// RealSense ROS convention).
+    Depth16Mm,
+}
+
+impl ImageEncoding {
+    /// Bytes per pixel.
+    pub fn bytes_per_pixel(self) -> usize {
+        match self {
+            ImageEncoding::Rgb8 => 3,
+            ImageEncoding::Mono8 => 1,
+            ImageEncoding::Depth16Mm => 2,
+        }
+    }
+
+    /// The `sensor_msgs/Image` encoding string.
+    pub fn ros_name(self) -> &'static str {
+        match self {
+            ImageEncoding::Rgb8 => "rgb8",
+            ImageEncoding::Mono8 => "mono8",
+            ImageEncoding::Depth16Mm => "16UC1",
+        }
+    }
+}
+
+/// A camera image (`sensor_msgs/Image`), rows top to bottom, no padding.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImageMsg {
+    /// Exposure-centre time.
+    pub stamp: Nanos,
+    /// Topic, e.g. `/front/left/image_rect` (a robot has several cameras).
+    pub topic: Arc<str>,
+    /// The camera's optical frame (x right, y down, z forward).
+    pub frame_id: FrameId,
+    /// Width, px.
+    pub width: u32,
+    /// Height, px.
+    pub height: u32,
+    /// Pixel layout.
+    pub encoding: ImageEncoding,
+    /// Pixels; shared, so passing the message on does not copy them.
+    pub data: Arc<[u8]>,
+}
+
+/// Calibration of a camera (`sensor_msgs/CameraInfo`), plumb-bob distortion.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraInfoMsg {
+    /// Stamp of the image it describes.
+    pub stamp: Nanos,
+    /// Topic, e.g. `/front/left/camera_info`.
+    pub topic: Arc<str>,
+    /// The camera's optical frame.
+    pub frame_id: FrameId,
+    /// Width, px.
+    pub width: u32,
+    /// Height, px.
+    pub height: u32,
+    /// Distortion coefficients `[k1, k2, p1, p2, k3]` (`plumb_bob`).
+    pub d: [f64; 5],
+    /// Intrinsic matrix, row-major.
+    pub k: [f64; 9],
+    /// Rectification rotation, row-major.
+    pub r: [f64; 9],
+    /// Projection matrix, row-major; `p[3] = -fx·baseline` for the right camera of a
+    /// rectified stereo pair.
+    pub p: [f64; 12],
+}
+
 /// Any message of the stream.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Message {
@@ -129,6 +205,10 @@ pub enum Message {
     TrackingOdom(OdometryMsg),
     /// Wheel or track odometry.
     WheelOdom(OdometryMsg),
+    /// A camera image (colour, grey or depth).
+    Image(ImageMsg),
+    /// A camera's calibration, published with each of its images.
+    CameraInfo(CameraInfoMsg),
 }
 
 /// A message as it reached the computer: `arrival` is at or after the message's stamp
@@ -147,7 +227,7 @@ pub struct TimedMessage {
 #[error("{topic} at {stamp}: field `{field}` {problem}")]
 pub struct InvalidMessage {
     /// The message's topic.
-    pub topic: &'static str,
+    pub topic: String,
     /// The message's stamp.
     pub stamp: Nanos,
     /// The field.
@@ -164,17 +244,21 @@ impl Message {
             Message::GnssFix(m) => m.stamp,
             Message::GnssVelocity(m) => m.stamp,
             Message::TrackingOdom(m) | Message::WheelOdom(m) => m.stamp,
+            Message::Image(m) => m.stamp,
+            Message::CameraInfo(m) => m.stamp,
         }
     }
 
     /// The ROS 2 topic vinebench publishes this message on.
-    pub fn topic(&self) -> &'static str {
+    pub fn topic(&self) -> &str {
         match self {
             Message::Imu(_) => "/imu/data",
             Message::GnssFix(_) => "/gnss/fix",
             Message::GnssVelocity(_) => "/gnss/fix_velocity",
             Message::TrackingOdom(_) => "/tracking_camera/odom/sample",
             Message::WheelOdom(_) => "/wheel/odom",
+            Message::Image(m) => &m.topic,
+            Message::CameraInfo(m) => &m.topic,
         }
     }
 
@@ -182,7 +266,7 @@ impl Message {
     /// symmetric with a non-negative diagonal. A `NoFix` GNSS fix may carry NaN position.
     pub fn validate(&self) -> Result<(), InvalidMessage> {
         let bad = |field, problem| InvalidMessage {
-            topic: self.topic(),
+            topic: self.topic().to_string(),
             stamp: self.stamp(),
             field,
             problem,
@@ -248,6 +332,20 @@ impl Message {
                 }
                 if !is_cov6(&m.twist_covariance) {
                     return Err(bad("twist_covariance", NOT_COV));
+                }
+            }
+            Message::Image(m) => {
+                let expected = m.width as usize * m.height as usize * m.encoding.bytes_per_pixel();
+                if m.data.len() != expected {
+                    return Err(bad(
+                        "data",
+                        "has a length other than width·height·bytes per pixel",
+                    ));
+                }
+            }
+            Message::CameraInfo(m) => {
+                if !(m.d.iter().chain(&m.k).chain(&m.r).chain(&m.p)).all(|c| c.is_finite()) {
+                    return Err(bad("k, d, r or p", NOT_FINITE));
                 }
             }
         }

@@ -16,6 +16,7 @@
 pub mod control;
 pub mod motion;
 pub mod params;
+pub mod render;
 pub mod physics;
 pub mod rng;
 pub mod robot;

@@ -33,8 +33,87 @@ pub struct WorldParams {
     pub terrain: TerrainParams,
     /// `[world.headlands]`.
     pub headlands: HeadlandsParams,
+    /// `[world.canopy]`: leaves, shoots and grapes (render geometry only).
+    pub canopy: CanopyParams,
+    /// `[[world.tags]]`: AprilTag boards.
+    pub tags: Vec<TagParams>,
+    /// `[[world.occluders]]`: plain featureless boxes.
+    pub occluders: Vec<OccluderParams>,
 }
 default_from_section!(WorldParams, "world");
+
+/// `[world.canopy]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CanopyParams {
+    /// Growth stage in [0, 1]: 0 bare cordons at budburst, 1 full canopy at veraison.
+    pub growth_stage: f64,
+    /// Leaves per vine at full growth.
+    pub leaves_per_plant: u32,
+    /// Leaf blade width at full growth, m.
+    pub leaf_size_m: f64,
+    /// Shoots per vine.
+    pub shoots_per_plant: u32,
+    /// Grape bunches per vine at full growth.
+    pub bunches_per_plant: u32,
+    /// Grape colour.
+    pub grape_colour: GrapeColour,
+    /// Number of distinct vine prototypes the vines are instances of.
+    pub prototypes: u32,
+}
+
+/// Grape berry colour.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GrapeColour {
+    /// Dark blue-purple (red varieties).
+    Red,
+    /// Yellow-green (white varieties).
+    White,
+}
+
+/// Where a tag or occluder stands, in row coordinates.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RowPlacement {
+    /// Row whose centre line the placement refers to.
+    pub row: u32,
+    /// Arc length along that row from its first post, m (negative: in the headland
+    /// before the row).
+    pub s_m: f64,
+    /// Offset to the left of the row centre line (towards the next row), m.
+    pub offset_m: f64,
+    /// Yaw relative to the row direction, degrees (counterclockwise seen from above).
+    pub yaw_deg: f64,
+}
+
+/// One `[[world.tags]]` board: a tag36h11 tag printed with a white border on a board
+/// standing upright.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TagParams {
+    /// Tag id in the tag36h11 family (0..=586).
+    pub id: u32,
+    /// Edge of the black square (AprilTag's "tag size"), m.
+    pub size_m: f64,
+    /// Height of the tag centre above the ground, m.
+    pub height_m: f64,
+    /// Position; at `yaw_deg = 0` the printed face looks along the row direction, at 90
+    /// towards the row's left side.
+    #[serde(flatten)]
+    pub at: RowPlacement,
+}
+
+/// One `[[world.occluders]]` box, standing on the ground.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OccluderParams {
+    /// Length (along its yaw), width and height, m.
+    pub size_m: [f64; 3],
+    /// Position of the box's footprint centre.
+    #[serde(flatten)]
+    pub at: RowPlacement,
+}
 
 /// `[world.rows]`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -309,8 +388,88 @@ pub struct SensorsParams {
     pub tracking_camera: TrackingCameraParams,
     /// `[sensors.wheel_odom]`.
     pub wheel_odom: WheelOdomParams,
+    /// `[[sensors.cameras]]`: rendered cameras.
+    pub cameras: Vec<CameraParams>,
 }
 default_from_section!(SensorsParams, "sensors");
+
+/// One `[[sensors.cameras]]` entry. Optional values default to the profile's datasheet
+/// values.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraParams {
+    /// Name; topics are `/<name>/...` and its random streams `sensors.camera.<name>.*`.
+    pub name: String,
+    /// Camera model.
+    pub profile: crate::render::camera::CameraProfile,
+    /// Optical frame (URDF link; the left one of a stereo pair).
+    pub frame: String,
+    /// Right optical frame of a stereo pair: both images are rendered and published.
+    #[serde(default)]
+    pub right_frame: Option<String>,
+    /// Image width, px (default: the profile's).
+    #[serde(default)]
+    pub width: Option<u32>,
+    /// Image height, px (default: the profile's).
+    #[serde(default)]
+    pub height: Option<u32>,
+    /// Frame rate, Hz (default: the profile's).
+    #[serde(default)]
+    pub rate_hz: Option<f64>,
+    /// Publish a depth image aligned to the colour image (default: true for `d435`).
+    #[serde(default)]
+    pub depth: Option<bool>,
+    /// Frame period jitter (1σ), ms.
+    #[serde(default)]
+    pub jitter_ms: Option<f64>,
+    /// Delivery latency, ms.
+    #[serde(default)]
+    pub latency_ms: Option<f64>,
+    /// Farthest range a colour pixel sees geometry, m (beyond it: sky).
+    #[serde(default)]
+    pub max_range_m: Option<f64>,
+}
+
+/// `[render]`: how camera images are made.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderParams {
+    /// Ray-casting backend.
+    pub backend: RenderBackend,
+    /// Ground triangulation step, m.
+    pub terrain_cell_m: f64,
+    /// Shadow-map texel, m.
+    pub shadow_cell_m: f64,
+    /// Sun compass azimuth, degrees clockwise from north.
+    pub sun_azimuth_deg: f64,
+    /// Sun elevation above the horizon, degrees.
+    pub sun_elevation_deg: f64,
+    /// Direct sun irradiance (relative).
+    pub sun_irradiance: f64,
+    /// Sky irradiance on an upward surface (relative).
+    pub sky_irradiance: f64,
+    /// Exposure multiplier.
+    pub exposure: f64,
+    /// Draw the sun disc and glare.
+    pub sun_glare: bool,
+    /// Read noise σ, linear units.
+    pub read_noise: f64,
+    /// Shot-noise variance per unit of linear signal.
+    pub shot_gain: f64,
+    /// Write every n-th image of each camera as PNG into the run folder (0 = none).
+    pub debug_png_every: u32,
+}
+default_from_section!(RenderParams, "render");
+
+/// Ray-casting backend.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RenderBackend {
+    /// The built-in two-level BVH with packet traversal (pure Rust).
+    Bvh,
+    /// Embree 3 (cargo feature `embree`).
+    Embree,
+}
 
 /// `[sensors.imu]`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -512,7 +512,7 @@ impl Eif {
                 self.stats.count_rejected("before_init");
             }
             Message::TrackingOdom(_) => self.stats.count_rejected("before_init"),
-            Message::WheelOdom(_) => {}
+            Message::WheelOdom(_) | Message::Image(_) | Message::CameraInfo(_) => {}
         }
     }
 
@@ -1043,7 +1043,7 @@ impl Estimator for Eif {
             Message::GnssFix(m) => self.on_fix(m),
             Message::GnssVelocity(m) => self.on_velocity(m),
             Message::TrackingOdom(m) => self.on_tracking(m),
-            Message::WheelOdom(_) => {}
+            Message::WheelOdom(_) | Message::Image(_) | Message::CameraInfo(_) => {}
         }
     }
 

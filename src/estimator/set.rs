@@ -230,7 +230,7 @@ impl EstimatorSet {
     pub fn push(&mut self, tm: &TimedMessage) {
         self.stage.received += 1;
         if let Err(e) = tm.msg.validate() {
-            self.stage.count_invalid(e.topic, e.field);
+            self.stage.count_invalid(&e.topic, e.field);
             return;
         }
         if let Some((field, frame)) = checked_frame(&tm.msg)
@@ -301,7 +301,7 @@ fn checked_frame(msg: &Message) -> Option<(&'static str, &str)> {
         Message::GnssFix(m) => Some(("frame_id", m.frame_id.as_str())),
         Message::GnssVelocity(m) => Some(("frame_id", m.frame_id.as_str())),
         Message::TrackingOdom(m) => Some(("child_frame_id", m.child_frame_id.as_str())),
-        Message::WheelOdom(_) => None,
+        Message::WheelOdom(_) | Message::Image(_) | Message::CameraInfo(_) => None,
     }
 }
 

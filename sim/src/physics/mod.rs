@@ -67,6 +67,11 @@ pub enum Obstacle {
         /// Planting slot along the row.
         slot: u32,
     },
+    /// A featureless box (index in [`crate::world::World::occluders`]).
+    Occluder {
+        /// Index in the world's occluder list.
+        index: usize,
+    },
     /// The ground, touched by the chassis (not the tracks or wheels): the robot bottomed
     /// out.
     Ground,

@@ -49,9 +49,12 @@ pub struct ObstacleShape {
     pub radius_m: f64,
     /// Height, m.
     pub height_m: f64,
+    /// A box instead of a cylinder: length (along `yaw_rad`) and width, m; `radius_m` is
+    /// then unused.
+    pub box_footprint_m: Option<(f64, f64, f64)>,
 }
 
-/// Posts and trunks of a world as obstacles.
+/// Posts, trunks and occluder boxes of a world as obstacles.
 pub fn obstacles_of(world: &World) -> Vec<ObstacleShape> {
     let posts = world
         .posts
@@ -62,6 +65,7 @@ pub fn obstacles_of(world: &World) -> Vec<ObstacleShape> {
             base_in_world: p.base_in_world,
             radius_m: p.diameter_m / 2.0,
             height_m: p.height_m,
+            box_footprint_m: None,
         });
     let trunks = world.plants.iter().map(|p| ObstacleShape {
         obstacle: Obstacle::Trunk {
@@ -71,8 +75,19 @@ pub fn obstacles_of(world: &World) -> Vec<ObstacleShape> {
         base_in_world: p.base_in_world,
         radius_m: p.trunk_diameter_m / 2.0,
         height_m: p.trunk_height_m,
+        box_footprint_m: None,
     });
-    posts.chain(trunks).collect()
+    let occluders = world.occluders.iter().enumerate().map(|(index, o)| {
+        let x = o.world_from_box.rotation * Vector3::x();
+        ObstacleShape {
+            obstacle: Obstacle::Occluder { index },
+            base_in_world: o.world_from_box.translation.vector,
+            radius_m: 0.0,
+            height_m: o.size_m.z,
+            box_footprint_m: Some((o.size_m.x, o.size_m.y, x.y.atan2(x.x))),
+        }
+    });
+    posts.chain(trunks).chain(occluders).collect()
 }
 
 /// A regular grid of ground heights (row-major along y, then x), for the heightfield
@@ -415,10 +430,20 @@ impl<S: Surface> RapierPhysics<S> {
         };
         for (i, o) in obstacles.iter().enumerate() {
             let centre = o.base_in_world + Vector3::z() * (o.height_m / 2.0);
-            let collider = rp::ColliderBuilder::cylinder(o.height_m / 2.0, o.radius_m)
+            let (builder, rotation) = match o.box_footprint_m {
+                None => (
+                    rp::ColliderBuilder::cylinder(o.height_m / 2.0, o.radius_m),
+                    y_to_z(),
+                ),
+                Some((length, width, yaw)) => (
+                    rp::ColliderBuilder::cuboid(length / 2.0, width / 2.0, o.height_m / 2.0),
+                    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
+                ),
+            };
+            let collider = builder
                 .position(pose_to_glam(&Isometry3::from_parts(
                     Translation3::from(centre),
-                    y_to_z(),
+                    rotation,
                 )))
                 .friction(0.5)
                 .collision_groups(static_groups(OBSTACLES))

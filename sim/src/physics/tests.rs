@@ -284,6 +284,7 @@ fn driving_into_a_post_is_a_collision_and_stops_the_robot() {
         base_in_world: Vector3::new(3.0, 0.0, 0.0),
         radius_m: 0.04,
         height_m: 1.9,
+        box_footprint_m: None,
     };
     let mut p = sim(TRACKED, plane(0.0), std::slice::from_ref(&post), 0.0);
     run(&mut p, [8.0, 8.0, 0.0, 0.0], 8.0);

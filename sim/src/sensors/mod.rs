@@ -13,6 +13,7 @@
 //!
 //! Shared noise processes live in [`noise`]; [`EpochClock`] gives drift-free sample times.
 
+pub mod camera;
 pub mod gnss;
 pub mod imu;
 pub mod noise;
@@ -88,6 +89,35 @@ pub fn build_sensors(
         sensors.push(Box::new(WheelOdom::new(&params.wheel_odom, ctx)?));
     }
     Ok(sensors)
+}
+
+/// Builds the `[[sensors.cameras]]`, rendering with `renderer`; camera `i`'s problems
+/// are reported as `sensors.cameras[i].<key>`.
+pub fn build_cameras(
+    cameras: &[crate::params::CameraParams],
+    render: &crate::params::RenderParams,
+    ctx: &SensorContext,
+    renderer: &std::sync::Arc<crate::render::shade::Renderer>,
+) -> Result<Vec<Box<dyn SensorModel>>, ParamError> {
+    let mut names = std::collections::BTreeSet::new();
+    let mut out: Vec<Box<dyn SensorModel>> = Vec::with_capacity(cameras.len());
+    for (i, p) in cameras.iter().enumerate() {
+        if !names.insert(p.name.as_str()) {
+            return Err(ParamError::new(
+                format!("sensors.cameras[{i}].name"),
+                "a name no other camera has",
+                format!("`{}`", p.name),
+            ));
+        }
+        out.push(Box::new(camera::Camera::new(
+            p,
+            i,
+            render,
+            ctx,
+            renderer.clone(),
+        )?));
+    }
+    Ok(out)
 }
 
 /// Lowest accepted sensor rate, Hz (keeps the exact epoch arithmetic within `i128`).

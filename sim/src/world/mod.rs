@@ -13,7 +13,7 @@ pub mod vineyard;
 pub use layout::RowLayout;
 pub use surface::{PlaneSurface, Surface, SurfacePoint};
 pub use terrain::Terrain;
-pub use vineyard::{Plant, Post, Wire};
+pub use vineyard::{Occluder, Plant, Post, TagBoard, Wire};
 
 use crate::params::{ParamError, WorldParams};
 
@@ -34,6 +34,10 @@ pub struct World {
     pub wires: Vec<Wire>,
     /// Vines (missing plants are absent), row by row, in order along the row.
     pub plants: Vec<Plant>,
+    /// AprilTag boards, in `[[world.tags]]` order.
+    pub tags: Vec<TagBoard>,
+    /// Featureless boxes, in `[[world.occluders]]` order.
+    pub occluders: Vec<Occluder>,
 }
 
 impl World {

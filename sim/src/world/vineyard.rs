@@ -7,12 +7,13 @@
 use super::World;
 use super::layout::RowLayout;
 use super::terrain::{self, Terrain};
+use crate::params::{CanopyParams, RowPlacement, TagParams};
 use crate::params::{
     HeadlandsParams, ParamError, PlantsParams, PostsParams, RowsParams, TerrainParams, WorldParams,
     require_non_negative, require_positive,
 };
 use crate::rng;
-use nalgebra::Vector3;
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rand::Rng;
 use rand_distr::StandardNormal;
 use sha2::{Digest, Sha256};
@@ -74,6 +75,29 @@ pub struct Plant {
     pub appearance_seed: u64,
 }
 
+/// An AprilTag board (tag36h11) standing upright.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TagBoard {
+    /// Tag id.
+    pub id: u32,
+    /// Edge of the black square, m (AprilTag's tag size); the printed board adds one
+    /// white cell (`size_m / 8`) on every side.
+    pub size_m: f64,
+    /// Pose of the tag frame in the world, AprilTag 3 / `apriltag_ros` convention: origin
+    /// at the tag centre, x to the right and y down as printed, z into the board (the
+    /// printed face looks along -z).
+    pub world_from_tag: Isometry3<f64>,
+}
+
+/// A plain, uniformly coloured box (a carton) standing on the ground.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Occluder {
+    /// Length, width, height, m.
+    pub size_m: Vector3<f64>,
+    /// Pose of the box's bottom face centre: x along its length, z up.
+    pub world_from_box: Isometry3<f64>,
+}
+
 /// See [`World::generate`].
 ///
 /// - Terrain: [`Terrain::generate`] from the `"world.terrain"` stream.
@@ -107,6 +131,19 @@ pub fn generate(seed: u64, params: &WorldParams) -> Result<World, ParamError> {
         &terrain,
         &mut rng::stream(seed, PLANTS_STREAM),
     );
+    let tags = params
+        .tags
+        .iter()
+        .map(|t| place_tag(t, &layout, &terrain))
+        .collect();
+    let occluders = params
+        .occluders
+        .iter()
+        .map(|o| Occluder {
+            size_m: Vector3::from(o.size_m),
+            world_from_box: placement_pose(&o.at, 0.0, &layout, &terrain),
+        })
+        .collect();
     Ok(World {
         seed,
         params: params.clone(),
@@ -115,7 +152,41 @@ pub fn generate(seed: u64, params: &WorldParams) -> Result<World, ParamError> {
         posts,
         wires,
         plants,
+        tags,
+        occluders,
     })
+}
+
+/// Pose of a row placement `height_m` above the ground: x along the placement's yaw,
+/// z up.
+fn placement_pose(
+    at: &RowPlacement,
+    height_m: f64,
+    layout: &RowLayout,
+    terrain: &Terrain,
+) -> Isometry3<f64> {
+    let (xy, tangent) = layout.point(layout.row_offset_m(at.row) + at.offset_m, at.s_m);
+    let yaw = tangent.y.atan2(tangent.x) + at.yaw_deg.to_radians();
+    Isometry3::from_parts(
+        Translation3::new(xy.x, xy.y, terrain.height_at(xy.x, xy.y) + height_m),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
+    )
+}
+
+fn place_tag(t: &TagParams, layout: &RowLayout, terrain: &Terrain) -> TagBoard {
+    let facing = placement_pose(&t.at, t.height_m, layout, terrain);
+    // Columns: tag x (the viewer's right), y (down), z (into the board) in the facing
+    // frame (x = the direction the printed face looks, z up).
+    let facing_from_tag = Rotation3::from_matrix_unchecked(Matrix3::new(
+        0.0, 0.0, -1.0, //
+        -1.0, 0.0, 0.0, //
+        0.0, -1.0, 0.0,
+    ));
+    TagBoard {
+        id: t.id,
+        size_m: t.size_m,
+        world_from_tag: facing * UnitQuaternion::from_rotation_matrix(&facing_from_tag),
+    }
 }
 
 /// Checks every `[world.*]` value; the first problem is returned with its dotted path.
@@ -124,7 +195,81 @@ pub fn validate(p: &WorldParams) -> Result<(), ParamError> {
     validate_rows(&p.rows, &p.headlands)?;
     validate_posts(&p.posts)?;
     validate_plants(&p.plants)?;
+    validate_canopy(&p.canopy)?;
+    for (i, t) in p.tags.iter().enumerate() {
+        validate_tag(&format!("world.tags[{i}]"), t, p.rows.count)?;
+    }
+    for (i, o) in p.occluders.iter().enumerate() {
+        let path = format!("world.occluders[{i}]");
+        validate_placement(&path, &o.at, p.rows.count)?;
+        for v in o.size_m {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(ParamError::new(
+                    format!("{path}.size_m"),
+                    "three positive lengths [length, width, height] in m",
+                    format!("{:?}", o.size_m),
+                ));
+            }
+        }
+    }
     terrain::validate_params(&p.terrain)
+}
+
+/// Largest tag36h11 id.
+pub const MAX_TAG36H11_ID: u32 = 586;
+
+fn validate_tag(path: &str, t: &TagParams, rows: u32) -> Result<(), ParamError> {
+    if t.id > MAX_TAG36H11_ID {
+        return Err(ParamError::new(
+            format!("{path}.id"),
+            format!("a tag36h11 id in 0..={MAX_TAG36H11_ID}"),
+            t.id,
+        ));
+    }
+    require_positive(&format!("{path}.size_m"), t.size_m)?;
+    require_non_negative(&format!("{path}.height_m"), t.height_m)?;
+    validate_placement(path, &t.at, rows)
+}
+
+fn validate_placement(path: &str, at: &RowPlacement, rows: u32) -> Result<(), ParamError> {
+    if at.row >= rows {
+        return Err(ParamError::new(
+            format!("{path}.row"),
+            format!("a row index below world.rows.count = {rows}"),
+            at.row,
+        ));
+    }
+    require_finite(&format!("{path}.s_m"), at.s_m)?;
+    require_finite(&format!("{path}.offset_m"), at.offset_m)?;
+    require_finite(&format!("{path}.yaw_deg"), at.yaw_deg)?;
+    Ok(())
+}
+
+fn validate_canopy(p: &CanopyParams) -> Result<(), ParamError> {
+    let g = p.growth_stage;
+    if !(g.is_finite() && (0.0..=1.0).contains(&g)) {
+        return Err(ParamError::new(
+            "world.canopy.growth_stage",
+            "a number in [0, 1]",
+            g,
+        ));
+    }
+    require_positive("world.canopy.leaf_size_m", p.leaf_size_m)?;
+    if p.prototypes < 1 {
+        return Err(ParamError::new(
+            "world.canopy.prototypes",
+            "at least 1",
+            p.prototypes,
+        ));
+    }
+    if p.leaves_per_plant > 20_000 {
+        return Err(ParamError::new(
+            "world.canopy.leaves_per_plant",
+            "at most 20000",
+            p.leaves_per_plant,
+        ));
+    }
+    Ok(())
 }
 
 fn require_finite(path: &str, value: f64) -> Result<f64, ParamError> {
@@ -352,6 +497,12 @@ impl DigestWriter {
             self.f64(v);
         }
     }
+    fn pose(&mut self, p: &Isometry3<f64>) {
+        self.vec3(&p.translation.vector);
+        for c in p.rotation.coords.iter() {
+            self.f64(*c);
+        }
+    }
     fn vec3(&mut self, v: &Vector3<f64>) {
         self.f64(v.x);
         self.f64(v.y);
@@ -375,7 +526,32 @@ pub fn digest(world: &World) -> String {
         plants,
         terrain,
         headlands,
+        canopy,
+        tags,
+        occluders,
     } = &world.params;
+    let CanopyParams {
+        growth_stage,
+        leaves_per_plant,
+        leaf_size_m,
+        shoots_per_plant,
+        bunches_per_plant,
+        grape_colour,
+        prototypes,
+    } = canopy;
+    w.f64(*growth_stage);
+    w.f64(*leaf_size_m);
+    for v in [
+        leaves_per_plant,
+        shoots_per_plant,
+        bunches_per_plant,
+        prototypes,
+    ] {
+        w.u32(*v);
+    }
+    w.u32(*grape_colour as u32);
+    // Tags and occluders enter through their resolved poses below.
+    let _ = (tags, occluders);
     let RowsParams {
         count,
         length_m,
@@ -526,6 +702,26 @@ pub fn digest(world: &World) -> String {
             w.f64(*v);
         }
         w.u64(*appearance_seed);
+    }
+    w.len(world.tags.len());
+    for TagBoard {
+        id,
+        size_m,
+        world_from_tag,
+    } in &world.tags
+    {
+        w.u32(*id);
+        w.f64(*size_m);
+        w.pose(world_from_tag);
+    }
+    w.len(world.occluders.len());
+    for Occluder {
+        size_m,
+        world_from_box,
+    } in &world.occluders
+    {
+        w.vec3(size_m);
+        w.pose(world_from_box);
     }
     let bytes: [u8; 32] = w.0.finalize().into();
     bytes.iter().map(|b| format!("{b:02x}")).collect()

@@ -1,0 +1,180 @@
+//! Rendering: camera images of the vineyard by CPU ray casting.
+//!
+//! - [`trace`]: the ray-casting seam ([`RayCaster`]) and its default pure-Rust backend, a
+//!   two-level wide BVH traversed with common-origin ray packets.
+//! - [`camera`]: pinhole cameras with Brown-Conrady distortion, camera profiles, the
+//!   D435 depth error model and image noise.
+//!
+//! Geometry handed to a [`RayCaster`] is a [`TraceScene`]: triangle meshes in their own
+//! frames and instances placing them in the scene frame. The scene frame is the world
+//! frame shifted by [`TraceScene::origin_in_world`] so `f32` keeps sub-millimetre
+//! precision over the whole vineyard.
+
+pub mod bvh;
+pub mod camera;
+#[cfg(feature = "embree")]
+pub mod embree;
+pub mod scene;
+pub mod shade;
+pub mod tag;
+pub mod texture;
+pub mod trace;
+
+pub use trace::{Hit, RayCaster, RayPacket};
+
+/// A triangle mesh in its own frame, as the ray caster sees it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MeshGeometry {
+    /// Vertex positions, m.
+    pub positions: Vec<[f32; 3]>,
+    /// Triangles as indices into `positions`, counter-clockwise seen from the front.
+    pub indices: Vec<[u32; 3]>,
+}
+
+/// An affine map `y = m·x + t` stored row-major as three rows `[m_r0, m_r1, m_r2, t_r]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Affine3 {
+    /// Rows of the 3×4 matrix `[m | t]`.
+    pub rows: [[f32; 4]; 3],
+}
+
+impl Affine3 {
+    /// The identity map.
+    pub const IDENTITY: Affine3 = Affine3 {
+        rows: [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+        ],
+    };
+
+    /// Applies the map to a point.
+    pub fn point(&self, p: [f32; 3]) -> [f32; 3] {
+        let r = &self.rows;
+        [
+            r[0][0] * p[0] + r[0][1] * p[1] + r[0][2] * p[2] + r[0][3],
+            r[1][0] * p[0] + r[1][1] * p[1] + r[1][2] * p[2] + r[1][3],
+            r[2][0] * p[0] + r[2][1] * p[1] + r[2][2] * p[2] + r[2][3],
+        ]
+    }
+
+    /// Applies the linear part to a vector.
+    pub fn vector(&self, v: [f32; 3]) -> [f32; 3] {
+        let r = &self.rows;
+        [
+            r[0][0] * v[0] + r[0][1] * v[1] + r[0][2] * v[2],
+            r[1][0] * v[0] + r[1][1] * v[1] + r[1][2] * v[2],
+            r[2][0] * v[0] + r[2][1] * v[1] + r[2][2] * v[2],
+        ]
+    }
+
+    /// The inverse map, computed in `f64`; `None` when the linear part is singular.
+    pub fn inverse(&self) -> Option<Affine3> {
+        let m = nalgebra::Matrix3::from_fn(|i, j| f64::from(self.rows[i][j]));
+        let t = nalgebra::Vector3::from_fn(|i, _| f64::from(self.rows[i][3]));
+        let mi = m.try_inverse()?;
+        let ti = -(mi * t);
+        Some(Affine3 {
+            rows: std::array::from_fn(|i| {
+                [
+                    mi[(i, 0)] as f32,
+                    mi[(i, 1)] as f32,
+                    mi[(i, 2)] as f32,
+                    ti[i] as f32,
+                ]
+            }),
+        })
+    }
+}
+
+/// One placement of a mesh in the scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Instance {
+    /// Index into [`TraceScene::meshes`].
+    pub mesh: u32,
+    /// Scene frame from the mesh's frame; any invertible affine map (rotation, translation
+    /// and per-axis scale are what the vineyard uses).
+    pub scene_from_mesh: Affine3,
+}
+
+/// Everything a [`RayCaster`] intersects.
+#[derive(Clone, Debug, Default)]
+pub struct TraceScene {
+    /// World position of the scene frame's origin (the scene frame is the world frame
+    /// translated by this), m.
+    pub origin_in_world: nalgebra::Vector3<f64>,
+    /// Prototype meshes.
+    pub meshes: Vec<MeshGeometry>,
+    /// Placements; a [`Hit`] names the instance by its index here.
+    pub instances: Vec<Instance>,
+}
+
+/// Builds the renderer of a world: render geometry, the `[render] backend` ray caster,
+/// textures and the sun's shadow map. Fails with the dotted path of the first `[render]`
+/// value that cannot be used.
+pub fn build_renderer(
+    world: &crate::world::World,
+    p: &crate::params::RenderParams,
+) -> Result<shade::Renderer, crate::params::ParamError> {
+    use crate::params::{ParamError, RenderBackend};
+    validate(p)?;
+    let scene = scene::build(
+        world,
+        &scene::GeometryOptions {
+            terrain_cell_m: p.terrain_cell_m,
+        },
+    );
+    let caster: Box<dyn RayCaster> = match p.backend {
+        RenderBackend::Bvh => trace::build_default(&scene.trace),
+        #[cfg(feature = "embree")]
+        RenderBackend::Embree => {
+            Box::new(embree::EmbreeCaster::new(&scene.trace).map_err(|e| {
+                ParamError::new(
+                    "render.backend",
+                    "an Embree device that builds the scene",
+                    e,
+                )
+            })?)
+        }
+        #[cfg(not(feature = "embree"))]
+        RenderBackend::Embree => {
+            return Err(ParamError::new(
+                "render.backend",
+                "\"bvh\" (this build has no Embree: build with `--features embree`)",
+                "\"embree\"",
+            ));
+        }
+    };
+    let light = shade::Lighting {
+        to_sun: shade::Lighting::sun_direction(p.sun_azimuth_deg, p.sun_elevation_deg),
+        sun: p.sun_irradiance as f32,
+        sky: p.sky_irradiance as f32,
+        exposure: p.exposure as f32,
+        sun_glare: p.sun_glare,
+    };
+    Ok(shade::Renderer::new(
+        scene,
+        caster,
+        light,
+        p.shadow_cell_m,
+        world.seed,
+    ))
+}
+
+/// Checks every `[render]` value; the first problem comes back with its dotted path.
+pub fn validate(p: &crate::params::RenderParams) -> Result<(), crate::params::ParamError> {
+    use crate::params::require_in;
+    require_in("render.terrain_cell_m", p.terrain_cell_m, 0.02, 5.0)?;
+    require_in("render.shadow_cell_m", p.shadow_cell_m, 0.005, 1.0)?;
+    require_in("render.sun_azimuth_deg", p.sun_azimuth_deg, -360.0, 360.0)?;
+    require_in("render.sun_elevation_deg", p.sun_elevation_deg, 1.0, 90.0)?;
+    require_in("render.sun_irradiance", p.sun_irradiance, 0.0, 100.0)?;
+    require_in("render.sky_irradiance", p.sky_irradiance, 0.0, 100.0)?;
+    require_in("render.exposure", p.exposure, 0.0, 1000.0)?;
+    require_in("render.read_noise", p.read_noise, 0.0, 1.0)?;
+    require_in("render.shot_gain", p.shot_gain, 0.0, 1.0)?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,386 @@
+//! End-to-end rendering tests: geometry, shading, cameras and noise together.
+
+use super::camera::{CameraSpec, DepthScratch, Intrinsics, StereoDepthNoise};
+use super::scene::{self, Material, RenderScene, ShadingMesh};
+use super::shade::{Frame, Lighting, Renderer};
+use super::texture::grvi;
+use super::{Affine3, Instance, MeshGeometry, TraceScene, trace};
+use crate::params::{RenderParams, RowPlacement, TagParams, WorldParams};
+use crate::world::World;
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+fn lighting() -> Lighting {
+    Lighting {
+        to_sun: Lighting::sun_direction(150.0, 50.0),
+        sun: 0.8,
+        sky: 0.3,
+        exposure: 1.0,
+        sun_glare: false,
+    }
+}
+
+/// A single square `[-h, h]²` at height `z` in the scene frame, facing up, of `material`.
+fn plane_scene(h: f32, z: f32, material: Material) -> RenderScene {
+    let geo = MeshGeometry {
+        positions: vec![[-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z]],
+        indices: vec![[0, 1, 2], [0, 2, 3]],
+    };
+    let s = f32::from(h / 2.0);
+    let shade = ShadingMesh {
+        normals: vec![[0.0, 0.0, 1.0]; 4],
+        uvs: vec![[-s, -s], [s, -s], [s, s], [-s, s]],
+        materials: vec![material; 2],
+    };
+    RenderScene {
+        trace: TraceScene {
+            origin_in_world: Vector3::zeros(),
+            meshes: vec![geo],
+            instances: vec![Instance {
+                mesh: 0,
+                scene_from_mesh: Affine3::IDENTITY,
+            }],
+        },
+        shading: vec![shade],
+        normal_from_mesh: vec![[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]],
+        instance_tag: vec![u32::MAX],
+        tag_ids: vec![],
+        caster_bounds: ([-h, -h, z - 0.1], [h, h, z + 0.1]),
+        grape: crate::params::GrapeColour::Red,
+    }
+}
+
+fn renderer(scene: RenderScene) -> Renderer {
+    let caster = trace::build_default(&scene.trace);
+    Renderer::new(scene, caster, lighting(), 0.05, 7)
+}
+
+/// Camera looking straight down from `height` above the origin (optical z = world -z).
+fn looking_down(height: f64) -> Isometry3<f64> {
+    // Optical x right = world x, y down = world -y, z forward = world -z.
+    let r = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::new(
+        1.0, 0.0, 0.0, //
+        0.0, -1.0, 0.0, //
+        0.0, 0.0, -1.0,
+    ));
+    Isometry3::from_parts(
+        Translation3::new(0.0, 0.0, height),
+        UnitQuaternion::from_rotation_matrix(&r),
+    )
+}
+
+fn render(r: &Renderer, intr: &Intrinsics, pose: &Isometry3<f64>) -> Frame {
+    let rays = intr.pixel_rays();
+    let mut f = Frame::new(intr.width, intr.height);
+    r.render(&rays, pose, (1.0 / intr.fx) as f32, 1000.0, &mut f);
+    f
+}
+
+#[test]
+fn a_plane_at_known_distance_gives_its_depth_and_the_d435_noise() {
+    let z = 2.0;
+    let r = renderer(plane_scene(50.0, 0.0, Material::Soil));
+    let spec = CameraSpec::d435_depth(super::camera::D435DepthMode::W848H480, 15.0);
+    let intr = spec.intrinsics;
+    let f = render(&r, &intr, &looking_down(z));
+    // Noise-free render: every pixel sees the plane at exactly depth z.
+    let worst = f
+        .depth_m
+        .iter()
+        .map(|d| (f64::from(*d) - z).abs())
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-4, "rendered depth off by {worst} m");
+    // Through the D435 model: mean within 1 mm, RMS as z²·s/(f·b) within 10 %.
+    let st = spec.stereo.expect("the D435 has a depth unit");
+    let model = StereoDepthNoise::new(&intr, &st);
+    let mut mm = vec![0u16; intr.pixel_count()];
+    let mut scratch = DepthScratch::new();
+    model.apply(
+        intr.width,
+        intr.height,
+        &f.depth_m,
+        &mut mm,
+        &mut scratch,
+        &mut ChaCha8Rng::seed_from_u64(3),
+    );
+    let valid: Vec<f64> = mm
+        .iter()
+        .filter(|&&d| d > 0)
+        .map(|&d| f64::from(d) * 1e-3)
+        .collect();
+    assert!(
+        valid.len() > intr.pixel_count() * 8 / 10,
+        "{} valid",
+        valid.len()
+    );
+    let mean = valid.iter().sum::<f64>() / valid.len() as f64;
+    let rms = (valid.iter().map(|d| (d - z).powi(2)).sum::<f64>() / valid.len() as f64).sqrt();
+    let expected = z * z * st.subpixel / (intr.fx * st.baseline_m);
+    assert!((mean - z).abs() < 1e-3, "mean {mean}");
+    assert!(
+        (rms / expected - 1.0).abs() < 0.1,
+        "rms {rms} vs z²·s/(f·b) = {expected}"
+    );
+}
+
+fn small_world(tags: Vec<TagParams>) -> World {
+    let mut p = WorldParams::default();
+    p.rows.count = 2;
+    p.rows.length_m = 12.0;
+    p.rows.yaw_deg = 0.0;
+    p.terrain.margin_m = 5.0;
+    p.headlands.width_m = 3.0;
+    p.canopy.leaves_per_plant = 400;
+    p.tags = tags;
+    World::generate(5, &p).expect("valid world")
+}
+
+fn world_renderer(world: &World) -> Renderer {
+    let p = RenderParams::default();
+    super::build_renderer(world, &p).expect("default render parameters are valid")
+}
+
+/// Optical frame at `eye` looking along world direction `forward` (level, z up).
+fn camera_at(eye: Vector3<f64>, forward: Vector3<f64>) -> Isometry3<f64> {
+    let z = forward.normalize();
+    let x = z.cross(&Vector3::z()).normalize();
+    let y = z.cross(&x);
+    let r = nalgebra::Rotation3::from_basis_unchecked(&[x, y, z]);
+    Isometry3::from_parts(eye.into(), UnitQuaternion::from_rotation_matrix(&r))
+}
+
+#[test]
+fn grvi_separates_leaf_pixels_from_soil_pixels() {
+    let world = small_world(vec![]);
+    let r = world_renderer(&world);
+    let intr = Intrinsics::from_hfov(320, 240, 87.0, Default::default());
+    // In the lane between the rows, 1 m up, looking along it and slightly down.
+    let pose = camera_at(Vector3::new(1.0, 1.25, 1.0), Vector3::new(1.0, 0.0, -0.25));
+    let f = render(&r, &intr, &pose);
+    let rays = intr.pixel_rays();
+    let o = pose.translation.vector - r.scene().trace.origin_in_world;
+    let (mut leaf, mut soil) = (Vec::new(), Vec::new());
+    for i in 0..intr.pixel_count() {
+        let d_cam = Vector3::new(rays.x[i], rays.y[i], rays.z[i]).cast::<f64>();
+        let d = pose.rotation * d_cam;
+        let hit = r.caster().cast_ray(
+            [o.x as f32, o.y as f32, o.z as f32],
+            [d.x as f32, d.y as f32, d.z as f32],
+            0.0,
+            1000.0,
+        );
+        if !hit.is_hit() {
+            continue;
+        }
+        let mesh = r.scene().trace.instances[hit.instance as usize].mesh as usize;
+        let m = r.scene().shading[mesh].materials[hit.prim as usize];
+        let px = [f.linear[3 * i], f.linear[3 * i + 1], f.linear[3 * i + 2]];
+        match m {
+            Material::Leaf => leaf.push(grvi(px)),
+            Material::Soil => soil.push(grvi(px)),
+            _ => {}
+        }
+    }
+    assert!(
+        leaf.len() > 2000 && soil.len() > 2000,
+        "{} leaf, {} soil",
+        leaf.len(),
+        soil.len()
+    );
+    // A single threshold classifies at least 95 % of each class.
+    let t = 0.05;
+    let leaf_ok = leaf.iter().filter(|&&g| g > t).count() as f64 / leaf.len() as f64;
+    let soil_ok = soil.iter().filter(|&&g| g <= t).count() as f64 / soil.len() as f64;
+    assert!(
+        leaf_ok > 0.95 && soil_ok > 0.95,
+        "leaf {leaf_ok}, soil {soil_ok}"
+    );
+}
+
+#[test]
+fn renders_are_identical_across_runs_and_thread_counts() {
+    let world = small_world(vec![]);
+    let r = world_renderer(&world);
+    let intr = Intrinsics::from_hfov(200, 120, 90.0, Default::default());
+    let pose = camera_at(Vector3::new(0.5, 1.25, 1.0), Vector3::new(1.0, 0.2, -0.2));
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool")
+        .install(|| render(&r, &intr, &pose));
+    let two = render(&r, &intr, &pose);
+    assert_eq!(one.linear, two.linear);
+    assert_eq!(one.depth_m, two.depth_m);
+    // A second renderer from the same world gives the same pixels.
+    let again = render(&world_renderer(&world), &intr, &pose);
+    assert_eq!(one.linear, again.linear);
+}
+
+#[test]
+fn an_apriltag_board_is_detected_at_the_projected_corners() {
+    let tag = TagParams {
+        id: 7,
+        size_m: 0.3,
+        height_m: 0.8,
+        at: RowPlacement {
+            row: 0,
+            s_m: 2.0,
+            offset_m: 1.0,
+            yaw_deg: -90.0,
+        },
+    };
+    let world = small_world(vec![tag]);
+    let board = &world.tags[0];
+    let r = world_renderer(&world);
+    // A distorted wide camera 1.5 m in front of the board, looking at it slightly off-axis.
+    let spec = CameraSpec::zed_x_mini();
+    let intr = spec.intrinsics.resized(960, 540);
+    let centre = board.world_from_tag.translation.vector;
+    let face = board.world_from_tag.rotation * -Vector3::z();
+    let eye = centre + face * 1.5 + Vector3::new(0.3, 0.0, 0.1);
+    let pose = camera_at(eye, centre - eye);
+    let f = render(&r, &intr, &pose);
+    let gray: Vec<u8> = f
+        .linear
+        .chunks_exact(3)
+        .map(|c| super::camera::linear_to_srgb_u8(0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]))
+        .collect();
+    let (w, h) = (intr.width as usize, intr.height as usize);
+    let mut image = apriltag::Image::zeros_with_stride(w, h, w).expect("image");
+    for y in 0..h {
+        for x in 0..w {
+            image[(x, y)] = gray[y * w + x];
+        }
+    }
+    let mut detector = apriltag::DetectorBuilder::new()
+        .add_family_bits(apriltag::Family::tag_36h11(), 1)
+        .build()
+        .expect("detector");
+    let detections = detector.detect(&image);
+    let det = detections.iter().find(|d| d.id() == 7).unwrap_or_else(|| {
+        panic!(
+            "tag 7 not detected; found {:?}",
+            detections.iter().map(|d| d.id()).collect::<Vec<_>>()
+        )
+    });
+    let camera_from_world = pose.inverse();
+    for (k, c) in super::tag::tag_corners(board.size_m).iter().enumerate() {
+        let p_world = board.world_from_tag * Point3::new(c[0], c[1], c[2]);
+        let p_cam = camera_from_world * p_world;
+        let px = intr.project(p_cam.coords).expect("corner in view");
+        // AprilTag puts pixel centres at +0.5; our cameras at integers (OpenCV).
+        let got = det.corners()[k];
+        let (gx, gy) = (got[0] - 0.5, got[1] - 0.5);
+        let err = ((px.x - gx).powi(2) + (px.y - gy).powi(2)).sqrt();
+        assert!(err < 1.5, "corner {k}: detected {got:?}, projected {px:?}");
+    }
+}
+
+#[test]
+fn stereo_disparity_of_a_textured_plane_gives_its_depth() {
+    // A textured ground plane seen straight down from 2.5 m by a rectified pair.
+    let z = 2.5;
+    let r = renderer(plane_scene(50.0, 0.0, Material::Soil));
+    let intr = Intrinsics::from_hfov(376, 240, 90.0, Default::default());
+    let baseline = 0.12;
+    let left_pose = looking_down(z);
+    let right_pose = left_pose * Isometry3::translation(baseline, 0.0, 0.0);
+    let grey = |f: &Frame| -> Vec<f32> {
+        f.linear
+            .chunks_exact(3)
+            .map(|c| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2])
+            .collect()
+    };
+    let l = grey(&render(&r, &intr, &left_pose));
+    let rr = grey(&render(&r, &intr, &right_pose));
+    let w = intr.width as usize;
+    let expected = intr.fx * baseline / z;
+    // Sum-of-absolute-differences block matching along the row, parabolic sub-pixel.
+    let mut depths = Vec::new();
+    for v in (40..200).step_by(20) {
+        for u in (120..340).step_by(20) {
+            let cost = |d: usize| -> f32 {
+                let mut s = 0.0;
+                for dv in -5i32..=5 {
+                    for du in -5i32..=5 {
+                        let row = (v as i32 + dv) as usize * w;
+                        let a = l[row + (u as i32 + du) as usize];
+                        let b = rr[row + (u as i32 + du) as usize - d];
+                        s += (a - b).abs();
+                    }
+                }
+                s
+            };
+            let costs: Vec<f32> = (1..100).map(cost).collect();
+            let (i, _) = costs
+                .iter()
+                .enumerate()
+                .min_by(|a, b| a.1.total_cmp(b.1))
+                .expect("costs");
+            if i == 0 || i + 1 >= costs.len() {
+                continue;
+            }
+            let (a, b, c) = (costs[i - 1], costs[i], costs[i + 1]);
+            let sub = 0.5 * (a - c) / (a - 2.0 * b + c);
+            let d = (i + 1) as f64 + f64::from(sub);
+            depths.push(intr.fx * baseline / d);
+        }
+    }
+    assert!(depths.len() > 60, "{} matches", depths.len());
+    depths.sort_by(f64::total_cmp);
+    let median = depths[depths.len() / 2];
+    assert!(
+        (median - z).abs() < 0.02 * z,
+        "median stereo depth {median} m (disparity {expected} px)"
+    );
+}
+
+#[test]
+fn render_scene_of_a_default_world_fits_the_memory_budget() {
+    let mut p = WorldParams::default();
+    p.rows.count = 10;
+    let world = World::generate(1, &p).expect("valid world");
+    let s = scene::build(
+        &world,
+        &scene::GeometryOptions {
+            terrain_cell_m: 0.25,
+        },
+    );
+    assert!(
+        s.instanced_triangles() > 5_000_000,
+        "{}",
+        s.instanced_triangles()
+    );
+    // Scene data alone well under the 500 MB budget (the BVH is measured by the bench).
+    assert!(s.memory_bytes() < 150_000_000, "{} bytes", s.memory_bytes());
+}
+
+#[cfg(feature = "embree")]
+#[test]
+fn embree_and_the_builtin_bvh_render_the_same_depth_image() {
+    use crate::params::RenderBackend;
+    let world = small_world(vec![]);
+    let bvh = world_renderer(&world);
+    let p = RenderParams {
+        backend: RenderBackend::Embree,
+        ..RenderParams::default()
+    };
+    let embree = super::build_renderer(&world, &p).expect("embree builds the scene");
+    let intr = Intrinsics::from_hfov(640, 480, 87.0, Default::default());
+    for pose in [
+        camera_at(Vector3::new(1.0, 1.25, 1.0), Vector3::new(1.0, 0.0, -0.25)),
+        camera_at(Vector3::new(6.0, 1.25, 1.2), Vector3::new(0.2, 1.0, -0.1)),
+    ] {
+        let a = render(&bvh, &intr, &pose);
+        let b = render(&embree, &intr, &pose);
+        let same = a
+            .depth_m
+            .iter()
+            .zip(&b.depth_m)
+            .filter(|(x, y)| (*x - *y).abs() <= 1e-3)
+            .count();
+        let frac = same as f64 / a.depth_m.len() as f64;
+        assert!(frac >= 0.999, "{:.4} % of depths within 1 mm", 100.0 * frac);
+    }
+}

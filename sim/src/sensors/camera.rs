@@ -1,0 +1,292 @@
+//! Rendered cameras: RGB-D (D435-like), rectified stereo pairs (ZED2i-like) and a
+//! high-resolution tag camera (ZED X mini-like).
+//!
+//! Each camera runs free on its own [`FrameClock`] (random start offset within a period,
+//! per-frame period jitter); stamps are exposure-centre times, the pose is the truth at
+//! the stamp (no motion blur). Per frame it publishes, RealSense/ZED style:
+//!
+//! | camera | topics |
+//! |---|---|
+//! | mono or RGB-D | `/<name>/color/image_raw` (`rgb8`), `/<name>/color/camera_info` |
+//! | RGB-D depth | `/<name>/aligned_depth_to_color/image_raw` (`16UC1`, mm, 0 = none) |
+//! | stereo pair | `/<name>/left/image_rect_color`, `/<name>/right/image_rect_color` and their `camera_info` |
+//!
+//! Depth is rendered from the colour camera's own rays (aligned by construction) and
+//! passed through the D435 error model ([`StereoDepthNoise`]): disparity noise giving
+//! `RMS(z) = z²·subpixel/(f·b)`, holes at depth edges, range limits, millimetre steps.
+//! Colour gets shot and read noise ([`ImageNoise`]) before sRGB encoding. Random streams:
+//! `sensors.camera.<name>.clock` (timing) and `sensors.camera.<name>.noise` (pixels), so
+//! image noise never shifts a stamp.
+
+use super::{SensorContext, SensorModel, latency_from_ms, mount, require_rate};
+use crate::params::{CameraParams, ParamError, RenderParams};
+use crate::render::camera::{
+    CameraProfile, CameraSpec, DepthScratch, FrameClock, ImageNoise, Intrinsics, RayTable,
+    StereoDepthNoise,
+};
+use crate::render::shade::{Frame, Renderer};
+use crate::rng;
+use crate::truth::TruthSample;
+use nalgebra::Isometry3;
+use rand_chacha::ChaCha8Rng;
+use std::sync::Arc;
+use vinebench_msgs::{FrameId, ImageEncoding, ImageMsg, Message, Nanos, TimedMessage};
+
+/// Default frame-period jitter, ms.
+pub const DEFAULT_JITTER_MS: f64 = 0.5;
+/// Default delivery latency, ms.
+pub const DEFAULT_LATENCY_MS: f64 = 30.0;
+/// Default farthest range of a colour pixel, m.
+pub const DEFAULT_MAX_RANGE_M: f64 = 200.0;
+
+/// One eye of a camera: where it is and what it publishes.
+#[derive(Debug)]
+struct Eye {
+    body_from_optical: Isometry3<f64>,
+    frame_id: FrameId,
+    image_topic: Arc<str>,
+    info_topic: Arc<str>,
+    /// `-fx·baseline` in the CameraInfo P matrix of a right eye.
+    right_baseline_m: f64,
+}
+
+/// A rendered camera (see the module docs).
+#[derive(Debug)]
+pub struct Camera {
+    name: String,
+    renderer: Arc<Renderer>,
+    intrinsics: Intrinsics,
+    rays: RayTable,
+    pixel_angle_rad: f32,
+    max_range_m: f32,
+    eyes: Vec<Eye>,
+    depth: Option<(StereoDepthNoise, Arc<str>)>,
+    noise: ImageNoise,
+    clock: FrameClock,
+    clock_rng: ChaCha8Rng,
+    noise_rng: ChaCha8Rng,
+    latency: Nanos,
+    frame: Frame,
+    depth_scratch: DepthScratch,
+    depth_mm: Vec<u16>,
+}
+
+impl Camera {
+    /// Builds camera `index` of `[[sensors.cameras]]`.
+    pub fn new(
+        p: &CameraParams,
+        index: usize,
+        render: &RenderParams,
+        ctx: &SensorContext,
+        renderer: Arc<Renderer>,
+    ) -> Result<Camera, ParamError> {
+        let path = format!("sensors.cameras[{index}]");
+        if p.name.is_empty()
+            || !p
+                .name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_')
+        {
+            return Err(ParamError::new(
+                format!("{path}.name"),
+                "a non-empty name of letters, digits and `_` (it becomes the topic prefix)",
+                format!("`{}`", p.name),
+            ));
+        }
+        let mut spec: CameraSpec = p.profile.spec();
+        if p.width.is_some() || p.height.is_some() {
+            let w = p.width.unwrap_or(spec.intrinsics.width);
+            let h = p.height.unwrap_or(spec.intrinsics.height);
+            if !(16..=8192).contains(&w) || !(16..=8192).contains(&h) {
+                return Err(ParamError::new(
+                    format!("{path}.width"),
+                    "width and height in 16..=8192 px",
+                    format!("{w}×{h}"),
+                ));
+            }
+            spec = spec.with_resolution(w, h);
+        }
+        let rate_hz = require_rate(
+            &format!("{path}.rate_hz"),
+            p.rate_hz.unwrap_or(spec.rate_hz),
+        )?;
+        let jitter_ms = p.jitter_ms.unwrap_or(DEFAULT_JITTER_MS);
+        crate::params::require_in(
+            &format!("{path}.jitter_ms"),
+            jitter_ms,
+            0.0,
+            1e3 / rate_hz / 4.0,
+        )?;
+        let latency = latency_from_ms(
+            &format!("{path}.latency_ms"),
+            p.latency_ms.unwrap_or(DEFAULT_LATENCY_MS),
+        )?;
+        let max_range_m = p.max_range_m.unwrap_or(DEFAULT_MAX_RANGE_M);
+        crate::params::require_in(&format!("{path}.max_range_m"), max_range_m, 0.1, 1e5)?;
+        let sensor = format!("cameras[{index}]");
+        let topic = |s: &str| -> Arc<str> { Arc::from(format!("/{}/{s}", p.name)) };
+        let mut eyes = Vec::with_capacity(2);
+        match &p.right_frame {
+            None => eyes.push(Eye {
+                body_from_optical: mount(ctx, &sensor, &p.frame)?,
+                frame_id: FrameId::new(&p.frame),
+                image_topic: topic("color/image_raw"),
+                info_topic: topic("color/camera_info"),
+                right_baseline_m: 0.0,
+            }),
+            Some(right) => {
+                let left = mount(ctx, &sensor, &p.frame)?;
+                let right_pose = mount(ctx, &sensor, right).map_err(|mut e| {
+                    e.path = format!("{path}.right_frame");
+                    e
+                })?;
+                let baseline = (left.inverse() * right_pose).translation.vector.x;
+                eyes.push(Eye {
+                    body_from_optical: left,
+                    frame_id: FrameId::new(&p.frame),
+                    image_topic: topic("left/image_rect_color"),
+                    info_topic: topic("left/camera_info"),
+                    right_baseline_m: 0.0,
+                });
+                eyes.push(Eye {
+                    body_from_optical: right_pose,
+                    frame_id: FrameId::new(right),
+                    image_topic: topic("right/image_rect_color"),
+                    info_topic: topic("right/camera_info"),
+                    right_baseline_m: baseline,
+                });
+            }
+        }
+        let wants_depth = p
+            .depth
+            .unwrap_or(p.profile == CameraProfile::D435Depth && p.right_frame.is_none());
+        let depth = match (wants_depth, spec.stereo) {
+            (false, _) => None,
+            (true, Some(st)) => Some((
+                StereoDepthNoise::new(&spec.intrinsics, &st),
+                topic("aligned_depth_to_color/image_raw"),
+            )),
+            (true, None) => {
+                return Err(ParamError::new(
+                    format!("{path}.depth"),
+                    "false for a camera without a depth unit (profile d435_color)",
+                    "true",
+                ));
+            }
+        };
+        let intrinsics = spec.intrinsics;
+        let rays = intrinsics.pixel_rays();
+        let mut clock_rng =
+            rng::stream(ctx.master_seed, &format!("sensors.camera.{}.clock", p.name));
+        let clock =
+            FrameClock::from_rate_hz(ctx.start, rate_hz, jitter_ms * 1e6, 0.0, &mut clock_rng);
+        let frame = Frame::new(intrinsics.width, intrinsics.height);
+        let n = intrinsics.pixel_count();
+        Ok(Camera {
+            name: p.name.clone(),
+            renderer,
+            pixel_angle_rad: (1.0 / intrinsics.fx) as f32,
+            max_range_m: max_range_m as f32,
+            intrinsics,
+            rays,
+            eyes,
+            depth,
+            noise: ImageNoise {
+                read_noise: render.read_noise as f32,
+                shot_gain: render.shot_gain as f32,
+            },
+            clock,
+            clock_rng,
+            noise_rng: rng::stream(ctx.master_seed, &format!("sensors.camera.{}.noise", p.name)),
+            latency,
+            frame,
+            depth_scratch: DepthScratch::new(),
+            depth_mm: vec![0; if wants_depth { n } else { 0 }],
+        })
+    }
+
+    /// The camera's name.
+    pub fn camera_name(&self) -> &str {
+        &self.name
+    }
+
+    /// The calibration of every eye.
+    pub fn intrinsics(&self) -> &Intrinsics {
+        &self.intrinsics
+    }
+}
+
+impl SensorModel for Camera {
+    fn name(&self) -> &'static str {
+        "camera"
+    }
+
+    fn next_time(&self) -> Nanos {
+        self.clock.peek()
+    }
+
+    fn sample(&mut self, truth: &TruthSample, out: &mut Vec<TimedMessage>) {
+        let stamp = self.clock.next(&mut self.clock_rng);
+        let arrival = stamp + self.latency;
+        let (w, h) = (self.intrinsics.width, self.intrinsics.height);
+        for (k, eye) in self.eyes.iter().enumerate() {
+            let world_from_optical = truth.world_from_body * eye.body_from_optical;
+            self.renderer.render(
+                &self.rays,
+                &world_from_optical,
+                self.pixel_angle_rad,
+                self.max_range_m,
+                &mut self.frame,
+            );
+            let mut rgb = vec![0u8; self.frame.linear.len()];
+            self.noise
+                .apply_encode_srgb(&self.frame.linear, &mut rgb, &mut self.noise_rng);
+            out.push(TimedMessage {
+                arrival,
+                msg: Message::Image(ImageMsg {
+                    stamp,
+                    topic: eye.image_topic.clone(),
+                    frame_id: eye.frame_id.clone(),
+                    width: w,
+                    height: h,
+                    encoding: ImageEncoding::Rgb8,
+                    data: Arc::from(rgb),
+                }),
+            });
+            out.push(TimedMessage {
+                arrival,
+                msg: Message::CameraInfo(self.intrinsics.camera_info_msg(
+                    stamp,
+                    eye.info_topic.clone(),
+                    eye.frame_id.clone(),
+                    eye.right_baseline_m,
+                )),
+            });
+            if k == 0
+                && let Some((model, topic)) = &self.depth
+            {
+                model.apply(
+                    w,
+                    h,
+                    &self.frame.depth_m,
+                    &mut self.depth_mm,
+                    &mut self.depth_scratch,
+                    &mut self.noise_rng,
+                );
+                let bytes: Vec<u8> = self.depth_mm.iter().flat_map(|d| d.to_le_bytes()).collect();
+                out.push(TimedMessage {
+                    arrival,
+                    msg: Message::Image(ImageMsg {
+                        stamp,
+                        topic: topic.clone(),
+                        frame_id: eye.frame_id.clone(),
+                        width: w,
+                        height: h,
+                        encoding: ImageEncoding::Depth16Mm,
+                        data: Arc::from(bytes),
+                    }),
+                });
+            }
+        }
+    }
+}
