@@ -26,8 +26,8 @@ use thiserror::Error;
 use vinebench_msgs::Nanos;
 use vinebench_msgs::geodesy::Geodetic;
 use vinebench_sim::params::{
-    FaultsParams, MotionParams, ParamError, PhysicsParams, RobotParams, RouteParams, SensorsParams,
-    RenderParams, WorldParams,
+    FaultsParams, MotionParams, ParamError, PhysicsParams, RenderParams, RobotParams, RouteParams,
+    SensorsParams, WorldParams,
 };
 
 /// A complete scenario, every field resolved (scenario file over defaults).

@@ -53,6 +53,16 @@ fn slope_row_meets_its_expectations() {
 }
 
 #[test]
+fn camera_row_meets_its_expectations() {
+    check("camera-row.toml");
+}
+
+#[test]
+fn rover_occluder_meets_its_expectations() {
+    check("rover-occluder.toml");
+}
+
+#[test]
 fn the_defaults_run_as_a_scenario() {
     check("defaults.toml");
 }

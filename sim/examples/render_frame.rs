@@ -1,4 +1,5 @@
-//! Times the stages of rendering one camera view of the default vineyard.
+//! Times the stages of rendering one camera view of the default vineyard (the ray-casting
+//! figures of both backends come from `vinebench bench --only render`).
 //!
 //! `cargo run --release -p vinebench-sim --example render_frame [rows] [frames]`
 use nalgebra::{Isometry3, Rotation3, UnitQuaternion, Vector3};
@@ -60,44 +61,4 @@ fn main() {
         dt * 1e3,
         640.0 * 480.0 / dt / 1e6
     );
-    use vinebench_sim::render::trace::{Hit, PACKET_SIZE, RayPacket};
-    let o = eye - r.scene().trace.origin_in_world;
-    let rm = pose.rotation.to_rotation_matrix();
-    let t = Instant::now();
-    let mut hits_total = 0usize;
-    for _ in 0..frames {
-        for ty in 0..60u32 {
-            for tx in 0..80u32 {
-                let mut cam = [[0.0f32; PACKET_SIZE]; 3];
-                let n = rays.fill_tile(tx * 8, ty * 8, 8, 8, &mut cam);
-                let mut p = RayPacket {
-                    origin: [o.x as f32, o.y as f32, o.z as f32],
-                    dir: [[0.0; PACKET_SIZE]; 3],
-                    len: n,
-                    t_min: 0.0,
-                    t_max: 200.0,
-                };
-                for l in 0..n {
-                    let d = rm * Vector3::new(cam[0][l], cam[1][l], cam[2][l]).cast::<f64>();
-                    p.dir[0][l] = d.x as f32;
-                    p.dir[1][l] = d.y as f32;
-                    p.dir[2][l] = d.z as f32;
-                }
-                let mut hits = [Hit::MISS; PACKET_SIZE];
-                r.caster().cast_packet(&p, &mut hits);
-                hits_total += hits[..n].iter().filter(|h| h.is_hit()).count();
-            }
-        }
-    }
-    let dt = t.elapsed().as_secs_f64() / frames as f64;
-    println!(
-        "cast only, 1 thread: {:.1} ms/frame, {:.1} Mrays/s, {:.0} % hit",
-        dt * 1e3,
-        640.0 * 480.0 / dt / 1e6,
-        100.0 * hits_total as f64 / (frames as f64 * 640.0 * 480.0)
-    );
 }
-
-/// Casts the same view without shading, to split tracing from shading.
-#[allow(dead_code)]
-fn cast_only() {}

@@ -16,8 +16,8 @@
 pub mod control;
 pub mod motion;
 pub mod params;
-pub mod render;
 pub mod physics;
+pub mod render;
 pub mod rng;
 pub mod robot;
 pub mod route;

@@ -6,29 +6,39 @@
 //!   16-bin SAH sweep over the three axes until it has four children (or every cluster
 //!   fits a leaf). Large subtrees are built in parallel with rayon; the structure only
 //!   depends on the input, never on the thread count. Nodes store their four child boxes
-//!   structure-of-arrays ([`Node4`], 112 bytes); bottom-level leaves hold up to four
-//!   triangles as one SoA block ([`Tri4`], 160 bytes).
+//!   structure-of-arrays ([`Node4`], 112 bytes); bottom-level leaves hold up to eight
+//!   triangles as one or two SoA blocks of four ([`Tri4`], 160 bytes).
 //! - **Triangle test.** Rays are intersected in the mesh frame with origin-relative
-//!   vertices `A = v0 - o`, `B = v1 - o`, `C = v2 - o` and the three edge functions
-//!   `w0 = d·(B×C)`, `w1 = d·(C×A)`, `w2 = d·(A×B)`: the ray hits when they share a sign,
-//!   `t = A·(B×C) / (w0 + w1 + w2)` and the barycentrics are `w1/Σw`, `w2/Σw`. An edge
-//!   shared by two triangles gives exactly opposite `w` in both (same products, swapped
-//!   operands), and when a `w` is within its rounding-error bound of zero its sign is
-//!   recomputed exactly (floating-point expansions), so rays through shared edges and
-//!   vertices of a closed mesh never leak. Ties in `t` go to the smallest
-//!   `(instance, triangle)`, so every path (packet, single ray, brute force) returns the
-//!   same bits.
-//! - **Packets.** A packet (common origin, 16 groups of 4 rays) is projected onto the
-//!   plane perpendicular to its dominant axis: every ray becomes a point `(a, b)` =
-//!   `(d_i, d_j) / |d_k|`, every group a small rectangle. A node's children project to
-//!   rectangles too (from their boxes' corners), so one SIMD pass culls the four
-//!   children against the packet's rectangle (its frustum) and then, per surviving child,
-//!   against the 16 group rectangles and the groups' current farthest hit. Leaves do the
-//!   same per triangle before the per-lane edge-function test, four rays per SIMD
-//!   operation. Instances transform the packet into the mesh frame (direction lanes by the
-//!   inverse linear part, not renormalised). Incoherent packets fall back to single rays.
+//!   vertices `A = v0 - o`, `B = v1 - o`, `C = v2 - o`. Inside test: the signs of the
+//!   edge functions `det(d, B, C)`, `det(d, C, A)`, `det(d, A, B)` (equal signs: hit),
+//!   evaluated as `d·(B×(C - B))` etc., which stays accurate for small distant
+//!   triangles. Whenever one is within its rounding-error bound of zero its sign is
+//!   recomputed exactly (floating-point expansions), so the predicate is exact and rays
+//!   through shared edges and vertices of a closed mesh never leak. `t` comes from the
+//!   triangle's own normal, `t = N·A / N·d` with `N = (v1 - v0)×(v2 - v0)`, the
+//!   barycentrics from the edge functions (`w1/Σw`, `w2/Σw`). Ties in `t` go to the
+//!   smallest `(instance, triangle)`. Every path (packet, single ray, the brute-force
+//!   [`brute_force_ray`]) does the same arithmetic and returns the same bits.
+//! - **Packets.** A packet (common origin, 16 groups of 4 consecutive lanes, 4 quads of 4
+//!   groups) is projected onto the plane perpendicular to its dominant axis: every ray
+//!   becomes a point `(a, b) = (d_i, d_j) / |d_k|`, every group and quad a small
+//!   rectangle. A node's children project to rectangles too (from their boxes' corners;
+//!   boxes straddling the origin's depth plane to half-open ones), so one SIMD pass culls
+//!   the four children against the packet's rectangle (its frustum) and its farthest hit;
+//!   surviving children are then tested against the quads (inner children) or the groups
+//!   (leaf children), including each group's current farthest hit, and visited front to
+//!   back. Leaves do the same per triangle, then run the edge-function test for each
+//!   remaining (triangle, group) pair, four rays per SIMD operation. Instances transform
+//!   the packet into the mesh frame (direction lanes by the inverse linear part, not
+//!   renormalised). Packets whose rays do not share a dominant half-space, or spread too
+//!   far, fall back to single rays.
 //! - **Single rays.** Classic 4-wide traversal: SIMD slab test of the four children,
 //!   front-to-back order, four triangles per SIMD test at leaves.
+//! - **Memory.** Nodes, triangle blocks (the vertices are copied) and 56 bytes per
+//!   instance; no per-ray or per-packet allocation (traversal stacks are per thread).
+
+// SIMD-style code indexes parallel arrays by lane, axis or group.
+#![allow(clippy::needless_range_loop)]
 
 use std::cell::RefCell;
 
@@ -40,8 +50,8 @@ use super::{Affine3, Instance, MeshGeometry, TraceScene};
 
 /// Child slot holding nothing.
 const EMPTY: u32 = u32::MAX;
-/// Flag of a leaf child; the low 31 bits are the leaf's payload (triangle block or
-/// instance index).
+/// Flag of a leaf child; the low 31 bits are the leaf's payload (bottom level:
+/// `first_block << 2 | (blocks - 1)`, see [`leaf_blocks`]; top level: instance index).
 const LEAF: u32 = 1 << 31;
 /// Most triangles in a bottom-level leaf (up to four [`Tri4`] blocks; a leaf's payload is
 /// `first_block << 2 | (blocks - 1)`).
@@ -311,7 +321,8 @@ fn split(refs: &mut [PrimRef], depth: u32) -> (usize, Aabb, Aabb) {
         let (l, r) = refs.split_at(m);
         (m, ref_bounds(l).0, ref_bounds(r).0)
     };
-    if !(ext[axis] > 0.0) {
+    // (Bounds are finite: the builder only takes finite boxes.)
+    if ext[axis] <= 0.0 {
         return halves(refs, n / 2);
     }
     if depth >= MEDIAN_DEPTH {
@@ -348,7 +359,7 @@ fn split(refs: &mut [PrimRef], depth: u32) -> (usize, Aabb, Aabb) {
     // Sweep: cost of putting bins 0..=k left.
     let mut best: Option<(f32, usize, usize)> = None;
     for a in 0..3 {
-        if !(ext[a] > 0.0) {
+        if ext[a] <= 0.0 {
             continue;
         }
         let mut right_area = [0.0f32; BINS];
@@ -701,8 +712,8 @@ pub struct TwoLevelBvh {
 pub struct BvhStats {
     /// Bottom-level wide nodes, all meshes.
     pub blas_nodes: usize,
-    /// Bottom-level leaves (triangle blocks), all meshes.
-    pub blas_leaves: usize,
+    /// Bottom-level triangle blocks (of four), all meshes.
+    pub blas_blocks: usize,
     /// Triangles stored in the leaves (valid ones).
     pub triangles: usize,
     /// Top-level wide nodes.
@@ -757,7 +768,7 @@ impl TwoLevelBvh {
     pub fn stats(&self) -> BvhStats {
         BvhStats {
             blas_nodes: self.meshes.iter().map(|m| m.nodes.len()).sum(),
-            blas_leaves: self.meshes.iter().map(|m| m.tris.len()).sum(),
+            blas_blocks: self.meshes.iter().map(|m| m.tris.len()).sum(),
             triangles: self
                 .meshes
                 .iter()
@@ -806,8 +817,10 @@ pub fn brute_force_ray(
     t_min: f32,
     t_max: f32,
 ) -> Hit {
-    let t_max = t_max.min(f32::MAX);
-    if !(t_min <= t_max) || !o.iter().chain(&d).all(|x| x.is_finite()) {
+    let Some(t_max) = ray_range(t_min, t_max) else {
+        return Hit::MISS;
+    };
+    if !o.iter().chain(&d).all(|x| x.is_finite()) {
         return Hit::MISS;
     }
     let mut best = RayBest::new(t_max);
@@ -926,7 +939,7 @@ pub(crate) fn eval_tri(v: &[[f32; 3]; 3], o: [f32; 3], d: [f32; 3]) -> Option<(f
     let (n, err) = edge_normals(a, b, c);
     let mut w = [dot(d, n[0]), dot(d, n[1]), dot(d, n[2])];
     let min_abs = w[0].abs().min(w[1].abs()).min(w[2].abs());
-    if !(min_abs > err * norm_inf(d)) {
+    if min_abs.partial_cmp(&(err * norm_inf(d))) != Some(std::cmp::Ordering::Greater) {
         let edges = [(b, c), (c, a), (a, b)];
         for (wi, (x, y)) in w.iter_mut().zip(edges) {
             *wi = fix_sign(*wi, orient_exact(d, x, y));
@@ -1014,6 +1027,13 @@ fn orient_exact(d: [f32; 3], x: [f32; 3], y: [f32; 3]) -> f64 {
 // ---------------------------------------------------------------------------------------
 // Single rays
 // ---------------------------------------------------------------------------------------
+
+/// The far end of a ray's `[t_min, t_max]` range, clamped to `f32::MAX` (a hit at `∞` is
+/// no hit), or `None` for an empty or NaN range.
+#[inline]
+fn ray_range(t_min: f32, t_max: f32) -> Option<f32> {
+    (t_min <= t_max).then_some(t_max.min(f32::MAX))
+}
 
 /// The best hit of one ray so far.
 #[derive(Clone, Copy, Debug)]
@@ -1322,14 +1342,16 @@ fn with_stack<T: Copy + 'static, R>(
             }
             f(&mut v)
         }
-        Err(_) => f(&mut vec![fill; 2 * STACK]),
+        Err(_) => f(&mut [fill; 2 * STACK]),
     })
 }
 
 impl TwoLevelBvh {
     fn cast_ray_impl(&self, o: [f32; 3], d: [f32; 3], t_min: f32, t_max: f32) -> Hit {
-        let t_max = t_max.min(f32::MAX);
-        if !(t_min <= t_max) || !o.iter().chain(&d).all(|x| x.is_finite()) {
+        let Some(t_max) = ray_range(t_min, t_max) else {
+            return Hit::MISS;
+        };
+        if !o.iter().chain(&d).all(|x| x.is_finite()) {
             return Hit::MISS;
         }
         let mut best = RayBest::new(t_max);
@@ -1477,7 +1499,7 @@ struct Frame<'a> {
     pb1: f32,
     /// Minimum of `ginv` over active groups.
     pinv: f32,
-    /// Largest `|d|_∞` of the packet's rays.
+    /// A bound of the packet's rays' `|d|_∞`.
     dinf: f32,
 }
 
@@ -1502,7 +1524,7 @@ impl<'a> Frame<'a> {
                 k = c;
             }
         }
-        if !(m[k].abs() > 0.0) || !o.iter().all(|x| x.is_finite()) {
+        if m[k] == 0.0 || m[k].is_nan() || !o.iter().all(|x| x.is_finite()) {
             return None;
         }
         let s = if m[k] > 0.0 { 1.0 } else { -1.0 };
@@ -1536,7 +1558,7 @@ impl<'a> Frame<'a> {
             pinv: f32::INFINITY,
             dinf: 0.0,
         };
-        let mut dinf = zero;
+        let mut dk_max = zero;
         let mut quad = [[
             f32::INFINITY,
             f32::NEG_INFINITY,
@@ -1549,7 +1571,7 @@ impl<'a> Frame<'a> {
             if qm == 0 {
                 continue;
             }
-            // Per group (row r of the 4×4 blocks): ratios and depth rates of its rays.
+            // Per group r of the quad: ratios and depth rates of its rays.
             let mut ra = [zero; 4];
             let mut rb = [zero; 4];
             let mut dk = [f32x4::ONE; 4];
@@ -1567,12 +1589,6 @@ impl<'a> Frame<'a> {
                 ra[r] = d[i][g] * rk;
                 rb[r] = d[j][g] * rk;
                 dk[r] = dkg;
-                dinf = dinf.fast_max(
-                    d[0][g]
-                        .abs()
-                        .fast_max(d[1][g].abs())
-                        .fast_max(d[2][g].abs()),
-                );
             }
             // Transposed, lane r of each row holds group r's values.
             let tr = |v: [f32x4; 4], f: fn(f32x4, f32x4) -> f32x4| {
@@ -1583,7 +1599,9 @@ impl<'a> Frame<'a> {
             let a1 = tr(ra, f32x4::fast_max);
             let b0 = tr(rb, f32x4::fast_min);
             let b1 = tr(rb, f32x4::fast_max);
-            let gi = f32x4::splat(1.0 - eta) / tr(dk, f32x4::fast_max);
+            let dmax = tr(dk, f32x4::fast_max);
+            dk_max = dk_max.fast_max(dmax);
+            let gi = f32x4::splat(1.0 - eta) / dmax;
             let (mut a0, mut a1) = (a0 - a0.abs() * eta4 - tiny, a1 + a1.abs() * eta4 + tiny);
             let (mut b0, mut b1) = (b0 - b0.abs() * eta4 - tiny, b1 + b1.abs() * eta4 + tiny);
             let (mut gi, mut gi_min) = (gi, gi);
@@ -1610,7 +1628,13 @@ impl<'a> Frame<'a> {
             hmax(fr.qb1),
             hmin(fr.qinv),
         );
-        fr.dinf = hmax(dinf);
+        // |d_i| = |a|·|d_k|: a bound of every ray's |d|_∞ from the rectangle and depth rates.
+        let ratio = 1f32
+            .max(fr.pa0.abs())
+            .max(fr.pa1.abs())
+            .max(fr.pb0.abs())
+            .max(fr.pb1.abs());
+        fr.dinf = hmax(dk_max) * ratio;
         let ok = fr.pa1 - fr.pa0 <= MAX_PACKET_SPAN
             && fr.pb1 - fr.pb0 <= MAX_PACKET_SPAN
             && fr.dinf.is_finite();
@@ -1927,7 +1951,6 @@ impl TwoLevelBvh {
         if len == 0 {
             return;
         }
-        let t_max = p.t_max.min(f32::MAX);
         let single = |hits: &mut [Hit; PACKET_SIZE]| {
             for (l, h) in hits.iter_mut().enumerate().take(len) {
                 *h = self.cast_ray_impl(
@@ -1938,9 +1961,12 @@ impl TwoLevelBvh {
                 );
             }
         };
-        if !(p.t_min >= 0.0 && p.t_min <= t_max) || self.tlas.is_empty() {
-            // Negative t_min (hits behind the origin) is outside the packet path's
-            // projection; empty ranges and scenes miss.
+        // Negative t_min (hits behind the origin) is outside the packet path's projection;
+        // empty ranges and scenes miss.
+        let Some(t_max) = ray_range(p.t_min, p.t_max) else {
+            return single(hits);
+        };
+        if p.t_min < 0.0 || self.tlas.is_empty() {
             return single(hits);
         }
         // Directions by group (four consecutive lanes: rows of 4 pixels of an 8×8 tile,
@@ -1995,8 +2021,26 @@ impl TwoLevelBvh {
                 },
             );
         });
-        for (l, h) in hits.iter_mut().enumerate().take(len) {
-            *h = st.lane(l / 4, l % 4).hit();
+        for (g, out) in hits[..len].chunks_mut(4).enumerate() {
+            let (t, inst, prim) = (
+                st.t[g].to_array(),
+                st.inst[g].to_array(),
+                st.prim[g].to_array(),
+            );
+            let (u, v) = (st.u[g].to_array(), st.v[g].to_array());
+            for (l, h) in out.iter_mut().enumerate() {
+                *h = if inst[l].to_bits() == Hit::NONE {
+                    Hit::MISS
+                } else {
+                    Hit {
+                        t: t[l],
+                        instance: inst[l].to_bits(),
+                        prim: prim[l].to_bits(),
+                        u: u[l],
+                        v: v[l],
+                    }
+                };
+            }
         }
     }
 

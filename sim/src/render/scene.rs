@@ -268,7 +268,7 @@ impl MeshBuilder {
             for (su, sv) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
                 let p = centre + u * (su * hu) + v * (sv * hv);
                 self.vertex(
-                    pose * Point3::from(p).coords,
+                    (pose * Point3::from(p)).coords,
                     nw,
                     [su * hu + hu, sv * hv + hv],
                 );

@@ -27,7 +27,7 @@ fn plane_scene(h: f32, z: f32, material: Material) -> RenderScene {
         positions: vec![[-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z]],
         indices: vec![[0, 1, 2], [0, 2, 3]],
     };
-    let s = f32::from(h / 2.0);
+    let s = h / 2.0;
     let shade = ShadingMesh {
         normals: vec![[0.0, 0.0, 1.0]; 4],
         uvs: vec![[-s, -s], [s, -s], [s, s], [-s, s]],
@@ -226,8 +226,8 @@ fn an_apriltag_board_is_detected_at_the_projected_corners() {
         at: RowPlacement {
             row: 0,
             s_m: 2.0,
-            offset_m: 1.0,
-            yaw_deg: -90.0,
+            offset_m: 0.8,
+            yaw_deg: 90.0,
         },
     };
     let world = small_world(vec![tag]);
@@ -257,6 +257,8 @@ fn an_apriltag_board_is_detected_at_the_projected_corners() {
         .add_family_bits(apriltag::Family::tag_36h11(), 1)
         .build()
         .expect("detector");
+    // Full resolution: the tag's cells are about 8 px here.
+    detector.set_decimation(1.0);
     let detections = detector.detect(&image);
     let det = detections.iter().find(|d| d.id() == 7).unwrap_or_else(|| {
         panic!(
@@ -304,9 +306,9 @@ fn stereo_disparity_of_a_textured_plane_gives_its_depth() {
                 let mut s = 0.0;
                 for dv in -5i32..=5 {
                     for du in -5i32..=5 {
-                        let row = (v as i32 + dv) as usize * w;
-                        let a = l[row + (u as i32 + du) as usize];
-                        let b = rr[row + (u as i32 + du) as usize - d];
+                        let row = (v + dv) as usize * w;
+                        let a = l[row + (u + du) as usize];
+                        let b = rr[row + (u + du) as usize - d];
                         s += (a - b).abs();
                     }
                 }
@@ -383,4 +385,69 @@ fn embree_and_the_builtin_bvh_render_the_same_depth_image() {
         let frac = same as f64 / a.depth_m.len() as f64;
         assert!(frac >= 0.999, "{:.4} % of depths within 1 mm", 100.0 * frac);
     }
+}
+
+#[test]
+fn occluder_boxes_and_tag_boards_stand_where_the_scenario_puts_them() {
+    let mut p = WorldParams::default();
+    p.rows.count = 2;
+    p.rows.length_m = 12.0;
+    p.rows.yaw_deg = 0.0;
+    p.terrain.margin_m = 5.0;
+    p.headlands.width_m = 3.0;
+    p.occluders = vec![crate::params::OccluderParams {
+        size_m: [0.6, 0.4, 0.5],
+        at: RowPlacement {
+            row: 0,
+            s_m: 6.0,
+            offset_m: 1.25,
+            yaw_deg: 0.0,
+        },
+    }];
+    p.tags = vec![TagParams {
+        id: 3,
+        size_m: 0.2,
+        height_m: 0.7,
+        at: RowPlacement {
+            row: 0,
+            s_m: 2.0,
+            offset_m: 1.0,
+            yaw_deg: 90.0,
+        },
+    }];
+    let world = World::generate(2, &p).expect("valid world");
+    let s = scene::build(
+        &world,
+        &scene::GeometryOptions {
+            terrain_cell_m: 0.25,
+        },
+    );
+    let caster = trace::build_default(&s.trace);
+    let material_hit = |from: Vector3<f64>, dir: Vector3<f64>| {
+        let o = from - s.trace.origin_in_world;
+        let hit = caster.cast_ray(
+            [o.x as f32, o.y as f32, o.z as f32],
+            [dir.x as f32, dir.y as f32, dir.z as f32],
+            0.0,
+            100.0,
+        );
+        assert!(hit.is_hit(), "{from} {dir}");
+        let mesh = s.trace.instances[hit.instance as usize].mesh as usize;
+        (
+            s.shading[mesh].materials[hit.prim as usize],
+            f64::from(hit.t),
+        )
+    };
+    // The box: centre (6, 1.25), 0.6 m long along x; a level ray from x = 3 at mid-height
+    // meets its face at x = 5.7.
+    let ground = world.terrain.height_at(6.0, 1.25);
+    let (m, t) = material_hit(Vector3::new(3.0, 1.25, ground + 0.25), Vector3::x());
+    assert_eq!(m, Material::Carton);
+    assert!((t - 2.7).abs() < 0.01, "box face at {t} m");
+    // The tag board at (2, 1.0), face towards +y, centre 0.7 m above ground: a ray from
+    // y = 2 towards -y meets the printed face at y = 1.0.
+    let ground = world.terrain.height_at(2.0, 1.0);
+    let (m, t) = material_hit(Vector3::new(2.0, 2.0, ground + 0.7), -Vector3::y());
+    assert_eq!(m, Material::Tag);
+    assert!((t - 1.0).abs() < 0.005, "tag face at {t} m");
 }

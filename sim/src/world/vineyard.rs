@@ -179,7 +179,7 @@ fn place_tag(t: &TagParams, layout: &RowLayout, terrain: &Terrain) -> TagBoard {
     // frame (x = the direction the printed face looks, z up).
     let facing_from_tag = Rotation3::from_matrix_unchecked(Matrix3::new(
         0.0, 0.0, -1.0, //
-        -1.0, 0.0, 0.0, //
+        1.0, 0.0, 0.0, //
         0.0, -1.0, 0.0,
     ));
     TagBoard {
