@@ -237,16 +237,7 @@ pub fn bench_renderer(
 /// Camera poses of the render benchmarks: 1.2 m up in lanes of the vineyard, looking
 /// along the rows, across them and obliquely.
 pub fn bench_views() -> Vec<nalgebra::Isometry3<f64>> {
-    use nalgebra::{Isometry3, Rotation3};
-    let view = |eye: Vector3<f64>, fwd: Vector3<f64>| {
-        let z = fwd.normalize();
-        let x = z.cross(&Vector3::z()).normalize();
-        let y = z.cross(&x);
-        Isometry3::from_parts(
-            eye.into(),
-            UnitQuaternion::from_rotation_matrix(&Rotation3::from_basis_unchecked(&[x, y, z])),
-        )
-    };
+    use vinebench_sim::render::camera::look_at as view;
     vec![
         view(Vector3::new(10.0, 3.75, 1.2), Vector3::new(1.0, 0.0, -0.1)),
         view(Vector3::new(60.0, 6.25, 1.2), Vector3::new(0.0, 1.0, -0.2)),

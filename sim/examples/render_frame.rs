@@ -2,10 +2,10 @@
 //! figures of both backends come from `vinebench bench --only render`).
 //!
 //! `cargo run --release -p vinebench-sim --example render_frame [rows] [frames]`
-use nalgebra::{Isometry3, Rotation3, UnitQuaternion, Vector3};
+use nalgebra::Vector3;
 use std::time::Instant;
 use vinebench_sim::params::{RenderParams, WorldParams};
-use vinebench_sim::render::camera::Intrinsics;
+use vinebench_sim::render::camera::{Intrinsics, look_at};
 use vinebench_sim::render::shade::Frame;
 use vinebench_sim::render::{build_renderer, scene};
 use vinebench_sim::world::World;
@@ -42,14 +42,7 @@ fn main() {
     );
     let intr = Intrinsics::from_hfov(640, 480, 87.0, Default::default());
     let rays = intr.pixel_rays();
-    let eye = Vector3::new(20.0, 3.75, 1.2);
-    let z = Vector3::new(1.0, 0.0, -0.1).normalize();
-    let x = z.cross(&Vector3::z()).normalize();
-    let y = z.cross(&x);
-    let pose = Isometry3::from_parts(
-        eye.into(),
-        UnitQuaternion::from_rotation_matrix(&Rotation3::from_basis_unchecked(&[x, y, z])),
-    );
+    let pose = look_at(Vector3::new(20.0, 3.75, 1.2), Vector3::new(1.0, 0.0, -0.1));
     let mut f = Frame::new(640, 480);
     let t = Instant::now();
     for _ in 0..frames {

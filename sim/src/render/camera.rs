@@ -459,6 +459,19 @@ impl Intrinsics {
     }
 }
 
+/// The optical frame (x right, y down, z forward) of a level camera at `eye` looking along
+/// `forward` (world frame, z up; `forward` must not be vertical): `world_from_optical`.
+pub fn look_at(eye: Vector3<f64>, forward: Vector3<f64>) -> nalgebra::Isometry3<f64> {
+    let z = forward.normalize();
+    let x = z.cross(&Vector3::z()).normalize();
+    let y = z.cross(&x);
+    let r = nalgebra::Rotation3::from_basis_unchecked(&[x, y, z]);
+    nalgebra::Isometry3::from_parts(
+        eye.into(),
+        nalgebra::UnitQuaternion::from_rotation_matrix(&r),
+    )
+}
+
 /// Unit ray directions through every pixel centre of a camera, camera optical frame,
 /// `f32`, **structure of arrays**: `x[i]`, `y[i]`, `z[i]` with `i = v·width + u` (rows top
 /// to bottom), matching [`super::RayPacket`]'s lanes.

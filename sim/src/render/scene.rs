@@ -84,6 +84,12 @@ pub struct RenderScene {
 }
 
 impl RenderScene {
+    /// The material a ray hit (`hit` must be a hit in this scene).
+    pub fn material_of(&self, hit: &super::Hit) -> Material {
+        let mesh = self.trace.instances[hit.instance as usize].mesh as usize;
+        self.shading[mesh].materials[hit.prim as usize]
+    }
+
     /// Number of triangles in the prototypes and unique meshes.
     pub fn stored_triangles(&self) -> usize {
         self.trace.meshes.iter().map(|m| m.indices.len()).sum()

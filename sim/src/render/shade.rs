@@ -160,37 +160,41 @@ impl ShadowMap {
     }
 }
 
-/// Baked textures, one per kind the materials use.
+/// Baked textures with their texel size in metres, indexed by `TextureKind as usize`
+/// (the order of [`TextureKind::ALL`]).
 #[derive(Clone, Debug)]
 struct Textures {
-    by_kind: Vec<(TextureKind, Texture, f32)>,
+    by_kind: Vec<(Texture, f32)>,
 }
 
 impl Textures {
     fn bake(seed: u64) -> Textures {
+        debug_assert!(
+            TextureKind::ALL
+                .iter()
+                .enumerate()
+                .all(|(i, k)| *k as usize == i),
+            "TextureKind::ALL lists the kinds in declaration order"
+        );
         let by_kind = TextureKind::ALL
             .par_iter()
             .map(|&k| {
                 let t = texture::bake(k, k.recommended_size(), seed);
                 // Texel size in metres, for the level of detail.
                 let texel_m = k.period_m() / t.width as f32;
-                (k, t, texel_m)
+                (t, texel_m)
             })
             .collect();
         Textures { by_kind }
     }
 
     fn get(&self, k: TextureKind) -> (&Texture, f32) {
-        let (_, t, m) = self
-            .by_kind
-            .iter()
-            .find(|(kind, _, _)| *kind == k)
-            .expect("every kind is baked");
+        let (t, m) = &self.by_kind[k as usize];
         (t, *m)
     }
 
     fn memory_bytes(&self) -> usize {
-        self.by_kind.iter().map(|(_, t, _)| t.memory_bytes()).sum()
+        self.by_kind.iter().map(|(t, _)| t.memory_bytes()).sum()
     }
 }
 
@@ -414,7 +418,7 @@ impl Renderer {
         let dl = dot(d, d).sqrt();
         let range = hit.t * dl;
         let p: [f32; 3] = std::array::from_fn(|i| origin[i] + d[i] * hit.t);
-        let material = sh.materials[hit.prim as usize];
+        let material = self.scene.material_of(hit);
         let tex = |k: TextureKind| {
             let (t, texel_m) = self.textures.get(k);
             let footprint = range * pixel_angle_rad / texel_m;

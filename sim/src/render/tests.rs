@@ -1,6 +1,6 @@
 //! End-to-end rendering tests: geometry, shading, cameras and noise together.
 
-use super::camera::{CameraSpec, DepthScratch, Intrinsics, StereoDepthNoise};
+use super::camera::{CameraSpec, DepthScratch, Intrinsics, StereoDepthNoise, look_at};
 use super::scene::{self, Material, RenderScene, ShadingMesh};
 use super::shade::{Frame, Lighting, Renderer};
 use super::texture::grvi;
@@ -141,22 +141,13 @@ fn world_renderer(world: &World) -> Renderer {
     super::build_renderer(world, &p).expect("default render parameters are valid")
 }
 
-/// Optical frame at `eye` looking along world direction `forward` (level, z up).
-fn camera_at(eye: Vector3<f64>, forward: Vector3<f64>) -> Isometry3<f64> {
-    let z = forward.normalize();
-    let x = z.cross(&Vector3::z()).normalize();
-    let y = z.cross(&x);
-    let r = nalgebra::Rotation3::from_basis_unchecked(&[x, y, z]);
-    Isometry3::from_parts(eye.into(), UnitQuaternion::from_rotation_matrix(&r))
-}
-
 #[test]
 fn grvi_separates_leaf_pixels_from_soil_pixels() {
     let world = small_world(vec![]);
     let r = world_renderer(&world);
     let intr = Intrinsics::from_hfov(320, 240, 87.0, Default::default());
     // In the lane between the rows, 1 m up, looking along it and slightly down.
-    let pose = camera_at(Vector3::new(1.0, 1.25, 1.0), Vector3::new(1.0, 0.0, -0.25));
+    let pose = look_at(Vector3::new(1.0, 1.25, 1.0), Vector3::new(1.0, 0.0, -0.25));
     let f = render(&r, &intr, &pose);
     let rays = intr.pixel_rays();
     let o = pose.translation.vector - r.scene().trace.origin_in_world;
@@ -173,8 +164,7 @@ fn grvi_separates_leaf_pixels_from_soil_pixels() {
         if !hit.is_hit() {
             continue;
         }
-        let mesh = r.scene().trace.instances[hit.instance as usize].mesh as usize;
-        let m = r.scene().shading[mesh].materials[hit.prim as usize];
+        let m = r.scene().material_of(&hit);
         let px = [f.linear[3 * i], f.linear[3 * i + 1], f.linear[3 * i + 2]];
         match m {
             Material::Leaf => leaf.push(grvi(px)),
@@ -203,7 +193,7 @@ fn renders_are_identical_across_runs_and_thread_counts() {
     let world = small_world(vec![]);
     let r = world_renderer(&world);
     let intr = Intrinsics::from_hfov(200, 120, 90.0, Default::default());
-    let pose = camera_at(Vector3::new(0.5, 1.25, 1.0), Vector3::new(1.0, 0.2, -0.2));
+    let pose = look_at(Vector3::new(0.5, 1.25, 1.0), Vector3::new(1.0, 0.2, -0.2));
     let one = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
@@ -239,7 +229,7 @@ fn an_apriltag_board_is_detected_at_the_projected_corners() {
     let centre = board.world_from_tag.translation.vector;
     let face = board.world_from_tag.rotation * -Vector3::z();
     let eye = centre + face * 1.5 + Vector3::new(0.3, 0.0, 0.1);
-    let pose = camera_at(eye, centre - eye);
+    let pose = look_at(eye, centre - eye);
     let f = render(&r, &intr, &pose);
     let gray: Vec<u8> = f
         .linear
@@ -371,8 +361,8 @@ fn embree_and_the_builtin_bvh_render_the_same_depth_image() {
     let embree = super::build_renderer(&world, &p).expect("embree builds the scene");
     let intr = Intrinsics::from_hfov(640, 480, 87.0, Default::default());
     for pose in [
-        camera_at(Vector3::new(1.0, 1.25, 1.0), Vector3::new(1.0, 0.0, -0.25)),
-        camera_at(Vector3::new(6.0, 1.25, 1.2), Vector3::new(0.2, 1.0, -0.1)),
+        look_at(Vector3::new(1.0, 1.25, 1.0), Vector3::new(1.0, 0.0, -0.25)),
+        look_at(Vector3::new(6.0, 1.25, 1.2), Vector3::new(0.2, 1.0, -0.1)),
     ] {
         let a = render(&bvh, &intr, &pose);
         let b = render(&embree, &intr, &pose);
@@ -432,11 +422,7 @@ fn occluder_boxes_and_tag_boards_stand_where_the_scenario_puts_them() {
             100.0,
         );
         assert!(hit.is_hit(), "{from} {dir}");
-        let mesh = s.trace.instances[hit.instance as usize].mesh as usize;
-        (
-            s.shading[mesh].materials[hit.prim as usize],
-            f64::from(hit.t),
-        )
+        (s.material_of(&hit), f64::from(hit.t))
     };
     // The box: centre (6, 1.25), 0.6 m long along x; a level ray from x = 3 at mid-height
     // meets its face at x = 5.7.
