@@ -165,3 +165,66 @@ fn the_rover_rig_streams_stereo_pairs_and_a_tag_camera() {
     let tx = right_tx.expect("right camera info");
     assert!((tx + 0.12).abs() < 1e-6, "Tx/fx = {tx}");
 }
+
+#[test]
+fn an_exposure_blurs_colour_images_and_is_checked_against_the_frame_period() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/camera-row.toml");
+    let base = std::fs::read_to_string(&path).unwrap();
+    // Only the centre camera, and the robot drives off after half a second, to keep the
+    // test short.
+    let cut = base
+        .find("[[sensors.cameras]]\nname = \"camera_left\"")
+        .unwrap();
+    let one = format!("{}\n[motion]\nstill_before_s = 0.5\n", &base[..cut]);
+    let with = |ms: f64| {
+        let toml = one.replace(
+            "name = \"camera_center\"",
+            &format!("name = \"camera_center\"\nexposure_ms = {ms}"),
+        );
+        LoadedScenario::from_str(&toml, "camera-row-exposure").unwrap()
+    };
+    // 15 Hz: an exposure longer than the 66.7 ms period is refused, naming the key.
+    let err = setup(&with(80.0))
+        .err()
+        .expect("an 80 ms exposure at 15 Hz");
+    assert!(
+        err.to_string().contains("sensors.cameras[0].exposure_ms"),
+        "{err}"
+    );
+    // A moving robot: a 30 ms exposure changes the colour images, not their stamps, and
+    // leaves the depth images alone.
+    let frames = |sc: &LoadedScenario| {
+        let mut built = setup(sc).unwrap();
+        let end = sc.start + Nanos::from_secs_f64(2.5);
+        let mut out = Vec::new();
+        loop {
+            let t = built.sensors.iter().map(|s| s.next_time()).min().unwrap();
+            if t > end {
+                break;
+            }
+            let truth = built.motion.advance_to(t);
+            for s in built.sensors.iter_mut() {
+                if s.next_time() == t {
+                    s.sample(&truth, &mut out);
+                }
+            }
+        }
+        out.into_iter()
+            .filter_map(|m| match m.msg {
+                Message::Image(img) if img.stamp > end - Nanos::from_secs_f64(0.2) => Some(img),
+                _ => None,
+            })
+            .collect::<Vec<_>>()
+    };
+    let (sharp, blurred) = (frames(&with(0.0)), frames(&with(30.0)));
+    assert_eq!(sharp.len(), blurred.len());
+    assert!(!sharp.is_empty());
+    for (a, b) in sharp.iter().zip(&blurred) {
+        assert_eq!((a.stamp, &a.topic), (b.stamp, &b.topic));
+        if a.encoding == ImageEncoding::Depth16Mm {
+            assert_eq!(a.data, b.data, "depth is not blurred");
+        } else {
+            assert_ne!(a.data, b.data, "{} at {} is not blurred", a.topic, a.stamp);
+        }
+    }
+}

@@ -428,6 +428,10 @@ pub struct CameraParams {
     /// Farthest range a colour pixel sees geometry, m (beyond it: sky).
     #[serde(default)]
     pub max_range_m: Option<f64>,
+    /// Exposure time, ms: colour images are blurred by the camera's motion over it
+    /// ([`crate::render::blur`]); 0 (the default) gives sharp images.
+    #[serde(default)]
+    pub exposure_ms: Option<f64>,
 }
 
 /// `[render]`: how camera images are made.

@@ -31,9 +31,10 @@
 
 use std::sync::{Arc, LazyLock};
 
+use crate::rng::IndexedRng;
 use nalgebra::{Matrix2, Vector2, Vector3};
 use rand::Rng;
-use rand_distr::StandardNormal;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use vinebench_msgs::{CameraInfoMsg, FrameId, Nanos};
 
@@ -929,84 +930,100 @@ impl StereoDepthNoise {
         assert_eq!(truth_m.len(), n, "truth image size");
         assert_eq!(out_mm.len(), n, "output image size");
 
-        // 1. The unit-variance disparity noise field.
+        // 1. The unit-variance disparity noise field, and the keys of the per-pixel
+        //    dropout draws: by index, in parallel (thread-count independent).
+        let normals = IndexedRng::new(rng.random());
+        let dropout = IndexedRng::new(rng.random());
         scratch.noise.resize(n, 0.0);
-        for v in scratch.noise.iter_mut() {
-            *v = rng.sample(StandardNormal);
-        }
+        scratch
+            .noise
+            .par_chunks_mut(NOISE_CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                for (q, xs) in chunk.chunks_mut(4).enumerate() {
+                    let g = normals.normals4(((c * NOISE_CHUNK) / 4 + q) as u64);
+                    xs.copy_from_slice(&g[..xs.len()]);
+                }
+            });
         let r = self.correlation_radius_px as usize;
         if r > 0 {
             scratch.tmp.resize(n, 0.0);
             box_unit_variance(&scratch.noise, &mut scratch.tmp, w, h, r, true);
             box_unit_variance(&scratch.tmp, &mut scratch.noise, w, h, r, false);
         }
-        scratch.suffix_min.resize(w, f64::INFINITY);
+        scratch.suffix_min.resize(n, f64::INFINITY);
 
         let fb = self.focal_px * self.baseline_m;
         let thr = self.edge_threshold;
         let dropout_below = (self.edge_dropout.clamp(0.0, 1.0) * 4_294_967_296.0) as u64;
         let valid = |z: f32| z.is_finite() && z > 0.0;
+        let noise = &scratch.noise;
 
-        for v in 0..h {
-            let row = &truth_m[v * w..(v + 1) * w];
-            // Suffix minimum of u' − d(u') over valid pixels right of u.
-            if self.occlusion {
-                let mut m = f64::INFINITY;
-                for u in (0..w).rev() {
-                    scratch.suffix_min[u] = m;
-                    let z = row[u];
-                    if valid(z) {
-                        m = m.min(u as f64 - fb / f64::from(z));
-                    }
-                }
-            }
-            for u in 0..w {
-                let i = v * w + u;
-                let uniform = u64::from(rng.random::<u32>());
-                let z = truth_m[i];
-                out_mm[i] = 0;
-                if !valid(z) {
-                    continue;
-                }
-                let zf = f64::from(z);
-                let d = fb / zf;
+        out_mm
+            .par_chunks_mut(w)
+            .zip(scratch.suffix_min.par_chunks_mut(w))
+            .enumerate()
+            .for_each(|(v, (out_row, suffix_min))| {
+                let row = &truth_m[v * w..(v + 1) * w];
+                // Suffix minimum of u' − d(u') over valid pixels right of u.
                 if self.occlusion {
-                    let ur = u as f64 - d;
-                    if ur < -0.5 || scratch.suffix_min[u] < ur {
-                        continue;
-                    }
-                }
-                // Edges in the 3×3 neighbourhood.
-                let (mut far_side, mut near_side) = (false, false);
-                for vv in v.saturating_sub(1)..(v + 2).min(h) {
-                    for uu in u.saturating_sub(1)..(u + 2).min(w) {
-                        let zq = truth_m[vv * w + uu];
-                        if !valid(zq) {
-                            near_side = true;
-                        } else if z - zq > (thr * zf) as f32 {
-                            far_side = true;
-                        } else if zq - z > (thr * f64::from(zq)) as f32 {
-                            near_side = true;
+                    let mut m = f64::INFINITY;
+                    for u in (0..w).rev() {
+                        suffix_min[u] = m;
+                        let z = row[u];
+                        if valid(z) {
+                            m = m.min(u as f64 - fb / f64::from(z));
                         }
                     }
                 }
-                if far_side || (near_side && uniform < dropout_below) {
-                    continue;
+                for u in 0..w {
+                    let i = v * w + u;
+                    let z = row[u];
+                    out_row[u] = 0;
+                    if !valid(z) {
+                        continue;
+                    }
+                    let zf = f64::from(z);
+                    let d = fb / zf;
+                    if self.occlusion {
+                        let ur = u as f64 - d;
+                        if ur < -0.5 || suffix_min[u] < ur {
+                            continue;
+                        }
+                    }
+                    // Edges in the 3×3 neighbourhood.
+                    let (mut far_side, mut near_side) = (false, false);
+                    for vv in v.saturating_sub(1)..(v + 2).min(h) {
+                        for uu in u.saturating_sub(1)..(u + 2).min(w) {
+                            let zq = truth_m[vv * w + uu];
+                            if !valid(zq) {
+                                near_side = true;
+                            } else if z - zq > (thr * zf) as f32 {
+                                far_side = true;
+                            } else if zq - z > (thr * f64::from(zq)) as f32 {
+                                near_side = true;
+                            }
+                        }
+                    }
+                    if far_side || (near_side && (dropout.bits(i as u64) >> 32) < dropout_below) {
+                        continue;
+                    }
+                    let dm = d + self.subpixel * f64::from(noise[i]);
+                    if dm.is_nan() || dm <= 0.0 {
+                        continue;
+                    }
+                    let zm = fb / dm;
+                    if zm < self.min_range_m || zm > self.max_range_m {
+                        continue;
+                    }
+                    // Nearest millimetre (zm > 0: adding ½ and truncating rounds, without
+                    // a libm call).
+                    let mm = (zm * 1000.0 + 0.5) as u32;
+                    if (1..=65535).contains(&mm) {
+                        out_row[u] = mm as u16;
+                    }
                 }
-                let dm = d + self.subpixel * f64::from(scratch.noise[i]);
-                if dm.is_nan() || dm <= 0.0 {
-                    continue;
-                }
-                let zm = fb / dm;
-                if zm < self.min_range_m || zm > self.max_range_m {
-                    continue;
-                }
-                let mm = (zm * 1000.0).round();
-                if (1.0..=65535.0).contains(&mm) {
-                    out_mm[i] = mm as u16;
-                }
-            }
-        }
+            });
     }
 }
 
@@ -1014,8 +1031,8 @@ impl StereoDepthNoise {
 /// the square root of its (border-clipped) window size, so i.i.d. unit-variance input
 /// stays unit-variance.
 fn box_unit_variance(src: &[f32], dst: &mut [f32], w: usize, h: usize, r: usize, horizontal: bool) {
-    for v in 0..h {
-        for u in 0..w {
+    dst.par_chunks_mut(w).enumerate().for_each(|(v, out)| {
+        for (u, o) in out.iter_mut().enumerate() {
             let (sum, count) = if horizontal {
                 let (lo, hi) = (u.saturating_sub(r), (u + r + 1).min(w));
                 (src[v * w + lo..v * w + hi].iter().sum::<f32>(), hi - lo)
@@ -1023,9 +1040,9 @@ fn box_unit_variance(src: &[f32], dst: &mut [f32], w: usize, h: usize, r: usize,
                 let (lo, hi) = (v.saturating_sub(r), (v + r + 1).min(h));
                 ((lo..hi).map(|vv| src[vv * w + u]).sum::<f32>(), hi - lo)
             };
-            dst[v * w + u] = sum / (count as f32).sqrt();
+            *o = sum / (count as f32).sqrt();
         }
-    }
+    });
 }
 
 // ---------------------------------------------------------------------------------------
@@ -1072,29 +1089,53 @@ impl ImageNoise {
         (self.read_noise * self.read_noise + self.shot_gain * signal.max(0.0)).sqrt()
     }
 
-    /// Adds noise in place to linear samples (no clamping). One normal draw per sample.
+    /// Adds noise in place to linear samples (no clamping). One key drawn from `rng`;
+    /// the samples' normals come from it by index ([`IndexedRng`]), in parallel.
     pub fn apply<R: Rng + ?Sized>(&self, linear: &mut [f32], rng: &mut R) {
-        for x in linear.iter_mut() {
-            let n: f32 = rng.sample(StandardNormal);
-            *x += self.sigma(*x) * n;
-        }
+        let normals = IndexedRng::new(rng.random());
+        linear
+            .par_chunks_mut(NOISE_CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                for (q, xs) in chunk.chunks_mut(4).enumerate() {
+                    let n = normals.normals4(((c * NOISE_CHUNK) / 4 + q) as u64);
+                    for (x, n) in xs.iter_mut().zip(n) {
+                        *x += self.sigma(*x) * n;
+                    }
+                }
+            });
     }
 
     /// Adds noise to linear samples and encodes them as 8-bit sRGB (clamped to [0, 1],
-    /// rounded to the nearest code), without touching the input. One normal draw per
-    /// sample.
+    /// rounded to the nearest code), without touching the input. One key drawn from
+    /// `rng`; the samples' normals come from it by index ([`IndexedRng`]), in parallel,
+    /// so the result does not depend on the thread count.
     ///
     /// # Panics
     ///
     /// If `out` and `linear` differ in length.
     pub fn apply_encode_srgb<R: Rng + ?Sized>(&self, linear: &[f32], out: &mut [u8], rng: &mut R) {
         assert_eq!(linear.len(), out.len(), "image sizes");
-        for (x, o) in linear.iter().zip(out.iter_mut()) {
-            let n: f32 = rng.sample(StandardNormal);
-            *o = linear_to_srgb_u8(*x + self.sigma(*x) * n);
-        }
+        let normals = IndexedRng::new(rng.random());
+        let (r2, gain) = (self.read_noise * self.read_noise, self.shot_gain);
+        out.par_chunks_mut(NOISE_CHUNK)
+            .zip(linear.par_chunks(NOISE_CHUNK))
+            .enumerate()
+            .for_each(|(c, (out, linear))| {
+                for (q, (o4, x4)) in out.chunks_mut(4).zip(linear.chunks(4)).enumerate() {
+                    let n = normals.normals4(((c * NOISE_CHUNK) / 4 + q) as u64);
+                    for ((o, x), n) in o4.iter_mut().zip(x4).zip(n) {
+                        let sigma = (r2 + gain * x.max(0.0)).sqrt();
+                        *o = linear_to_srgb_u8(*x + sigma * n);
+                    }
+                }
+            });
     }
 }
+
+/// Samples per parallel task of the noise passes (a multiple of 4: four normals per
+/// random index).
+const NOISE_CHUNK: usize = 16 * 1024;
 
 /// The sRGB transfer function (IEC 61966-2-1), linear → encoded, both in [0, 1].
 pub fn linear_to_srgb(x: f64) -> f64 {
@@ -1256,7 +1297,7 @@ impl FrameClock {
     /// The next exposure-centre stamp. One normal draw per call.
     pub fn next<R: Rng + ?Sized>(&mut self, rng: &mut R) -> Nanos {
         let stamp = self.next_stamp;
-        let n: f64 = rng.sample(StandardNormal);
+        let n: f64 = rng.sample(rand_distr::StandardNormal);
         let interval = self.period.0 as f64 * (1.0 + self.drift_ppm * 1e-6)
             + self.jitter_ns * n
             + self.carry_ns;

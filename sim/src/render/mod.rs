@@ -10,6 +10,7 @@
 //! frame shifted by [`TraceScene::origin_in_world`] so `f32` keeps sub-millimetre
 //! precision over the whole vineyard.
 
+pub mod blur;
 pub mod bvh;
 pub mod camera;
 #[cfg(feature = "embree")]

@@ -139,7 +139,11 @@ impl ShadowMap {
         let x = (dot(p, self.axis_a) - self.a0) / self.cell_m - 0.5;
         let y = (dot(p, self.axis_b) - self.b0) / self.cell_m - 0.5;
         let level = dot(p, self.to_sun) + bias_m;
-        let (xf, yf) = (x.floor(), y.floor());
+        let fl = |v: f32| {
+            let i = v as i64 as f32;
+            if i > v { i - 1.0 } else { i }
+        };
+        let (xf, yf) = (fl(x), fl(y));
         let (fx, fy) = (x - xf, y - yf);
         let (x0, y0) = (xf as i64, yf as i64);
         let lit = |xi: i64, yi: i64| -> f32 {

@@ -437,3 +437,92 @@ fn occluder_boxes_and_tag_boards_stand_where_the_scenario_puts_them() {
     assert_eq!(m, Material::Tag);
     assert!((t - 1.0).abs() < 0.005, "tag face at {t} m");
 }
+
+#[test]
+fn motion_blur_matches_the_average_of_renders_over_the_exposure() {
+    use super::blur::{CameraMotion, motion_blur};
+    use super::camera::BrownConrady;
+    // A textured ground 2 m below a camera that moves sideways, forwards and turns during
+    // a long exposure: the post-process blur must match the exposure integral, i.e. the
+    // mean of many sharp renders at poses spread over the exposure.
+    let r = renderer(plane_scene(50.0, 0.0, Material::Soil));
+    let intr = Intrinsics::from_hfov(200, 150, 70.0, BrownConrady::NONE);
+    let rays = intr.pixel_rays();
+    let pose = looking_down(2.0);
+    let motion = CameraMotion {
+        linear_mps: Vector3::new(1.2, -0.4, 0.3),
+        angular_radps: Vector3::new(0.2, 0.3, 0.9),
+    };
+    let exposure_s = 0.05;
+    let render_at = |t: f64| {
+        let step = Isometry3::new(motion.linear_mps * t, motion.angular_radps * t);
+        let mut f = Frame::new(intr.width, intr.height);
+        r.render(
+            &rays,
+            &(pose * step),
+            (1.0 / intr.fx) as f32,
+            1000.0,
+            &mut f,
+        );
+        f
+    };
+    let k = 48;
+    let mut reference = vec![0.0f32; 3 * intr.pixel_count()];
+    for j in 0..k {
+        let t = ((j as f64 + 0.5) / k as f64 - 0.5) * exposure_s;
+        for (a, x) in reference.iter_mut().zip(&render_at(t).linear) {
+            *a += x / k as f32;
+        }
+    }
+    let sharp = render_at(0.0);
+    let mut blurred = sharp.clone();
+    let mut scratch = Vec::new();
+    motion_blur(
+        &mut blurred,
+        &mut scratch,
+        &rays,
+        intr.fx,
+        intr.fy,
+        &motion,
+        exposure_s,
+    );
+    // Compare away from the border (the blur clamps at the image edge).
+    let (w, h) = (intr.width as usize, intr.height as usize);
+    let err = |img: &[f32]| {
+        let mut s = 0.0f64;
+        let mut n = 0usize;
+        for v in 12..h - 12 {
+            for u in 12..w - 12 {
+                for c in 0..3 {
+                    let i = 3 * (v * w + u) + c;
+                    s += f64::from((img[i] - reference[i]).abs());
+                    n += 1;
+                }
+            }
+        }
+        s / n as f64
+    };
+    let (e_blur, e_sharp) = (err(&blurred.linear), err(&sharp.linear));
+    // The smear is several pixels long (translation ≈ 1.2·fx·T/Z ≈ 4.3 px, rotation
+    // ≈ 0.9·T·r ≈ 3 px at the corners), so the sharp image is far from the integral.
+    assert!(
+        e_blur < 0.25 * e_sharp,
+        "mean |blurred − integral| = {e_blur}, |sharp − integral| = {e_sharp}"
+    );
+    // Blurring the other way round (wrong sign) must be worse than the right one.
+    let mut wrong = sharp.clone();
+    let reversed = CameraMotion {
+        linear_mps: -motion.linear_mps,
+        angular_radps: motion.angular_radps,
+    };
+    motion_blur(
+        &mut wrong,
+        &mut scratch,
+        &rays,
+        intr.fx,
+        intr.fy,
+        &reversed,
+        exposure_s,
+    );
+    assert!(err(&wrong.linear) > 2.0 * e_blur);
+}

@@ -492,27 +492,63 @@ pub struct Texture {
 
 /// Splits a wrapped texture coordinate into the two neighbouring texel indices and the
 /// blend weight of the second (texel centres at `(i + 0.5) / n`).
+#[inline(always)]
 fn wrap_coord(t: f32, n: usize) -> (usize, usize, f32) {
-    let t = if t.is_finite() { t - t.floor() } else { 0.0 };
+    // Floor without a libm call; |t| ≥ 2²³ is an integer already (and wraps to 0).
+    let floor = |x: f32| {
+        if x.abs() < 8_388_608.0 {
+            let i = x as i32 as f32;
+            if i > x { i - 1.0 } else { i }
+        } else {
+            x
+        }
+    };
+    let t = if t.is_finite() { t - floor(t) } else { 0.0 };
     let x = t * n as f32 - 0.5;
-    let x0 = ifloor(x);
-    let f = x - x0 as f32;
-    let i0 = (x0 as i64).rem_euclid(n as i64) as usize;
+    let x0 = floor(x);
+    let f = x - x0;
+    // x0 is in -1..n here: wrap without a division.
+    let i0 = if x0 < 0.0 {
+        n - 1
+    } else {
+        (x0 as usize).min(n - 1)
+    };
     let i1 = if i0 + 1 >= n { 0 } else { i0 + 1 };
     (i0, i1, f)
 }
 
-fn decode(t: [u8; 3]) -> Rgb {
-    [decode_srgb(t[0]), decode_srgb(t[1]), decode_srgb(t[2])]
+#[inline(always)]
+fn decode_with(lut: &[f32; 256], t: [u8; 3]) -> Rgb {
+    [
+        lut[usize::from(t[0])],
+        lut[usize::from(t[1])],
+        lut[usize::from(t[2])],
+    ]
 }
 
-fn bilinear(width: usize, height: usize, texels: &[[u8; 3]], u: f32, v: f32) -> Rgb {
+fn decode(t: [u8; 3]) -> Rgb {
+    decode_with(&SRGB_TO_LINEAR, t)
+}
+
+#[inline(always)]
+fn bilinear_with(
+    lut: &[f32; 256],
+    width: usize,
+    height: usize,
+    texels: &[[u8; 3]],
+    u: f32,
+    v: f32,
+) -> Rgb {
     let (x0, x1, fx) = wrap_coord(u, width);
     let (y0, y1, fy) = wrap_coord(v, height);
-    let t = |x: usize, y: usize| decode(texels[y * width + x]);
+    let t = |x: usize, y: usize| decode_with(lut, texels[y * width + x]);
     let top = mix(t(x0, y0), t(x1, y0), fx);
     let bottom = mix(t(x0, y1), t(x1, y1), fx);
     mix(top, bottom, fy)
+}
+
+fn bilinear(width: usize, height: usize, texels: &[[u8; 3]], u: f32, v: f32) -> Rgb {
+    bilinear_with(&SRGB_TO_LINEAR, width, height, texels, u, v)
 }
 
 impl Texture {
@@ -599,11 +635,12 @@ impl Texture {
         };
         let l0 = lod as usize;
         let f = lod - l0 as f32;
+        let lut: &[f32; 256] = &SRGB_TO_LINEAR;
         let at = |l: usize| match l {
-            0 => self.sample(u, v),
+            0 => bilinear_with(lut, self.width, self.height, &self.texels, u, v),
             _ => {
                 let m = &self.mips[(l - 1).min(self.mips.len() - 1)];
-                bilinear(m.width, m.height, &m.texels, u, v)
+                bilinear_with(lut, m.width, m.height, &m.texels, u, v)
             }
         };
         let a = at(l0);

@@ -20,6 +20,7 @@
 
 use super::{SensorContext, SensorModel, latency_from_ms, mount, require_rate};
 use crate::params::{CameraParams, ParamError, RenderParams};
+use crate::render::blur::{CameraMotion, motion_blur};
 use crate::render::camera::{
     CameraProfile, CameraSpec, DepthScratch, FrameClock, ImageNoise, Intrinsics, RayTable,
     StereoDepthNoise,
@@ -67,6 +68,9 @@ pub struct Camera {
     noise_rng: ChaCha8Rng,
     latency: Nanos,
     frame: Frame,
+    /// Exposure time for motion blur, s (0: sharp images).
+    exposure_s: f64,
+    blur_scratch: Vec<f32>,
     depth_scratch: DepthScratch,
     depth_mm: Vec<u16>,
 }
@@ -120,6 +124,13 @@ impl Camera {
         let latency = latency_from_ms(
             &format!("{path}.latency_ms"),
             p.latency_ms.unwrap_or(DEFAULT_LATENCY_MS),
+        )?;
+        let exposure_ms = p.exposure_ms.unwrap_or(0.0);
+        crate::params::require_in(
+            &format!("{path}.exposure_ms"),
+            exposure_ms,
+            0.0,
+            1e3 / rate_hz,
         )?;
         let max_range_m = p.max_range_m.unwrap_or(DEFAULT_MAX_RANGE_M);
         crate::params::require_in(&format!("{path}.max_range_m"), max_range_m, 0.1, 1e5)?;
@@ -200,6 +211,8 @@ impl Camera {
             noise_rng: rng::stream(ctx.master_seed, &format!("sensors.camera.{}.noise", p.name)),
             latency,
             frame,
+            exposure_s: exposure_ms * 1e-3,
+            blur_scratch: Vec::new(),
             depth_scratch: DepthScratch::new(),
             depth_mm: vec![0; if wants_depth { n } else { 0 }],
         })
@@ -238,6 +251,22 @@ impl SensorModel for Camera {
                 self.max_range_m,
                 &mut self.frame,
             );
+            if self.exposure_s > 0.0 {
+                let k = truth.at_mount(&eye.body_from_optical);
+                let motion = CameraMotion {
+                    linear_mps: k.world_from_sensor.rotation.inverse() * k.velocity_in_world,
+                    angular_radps: k.angular_velocity_in_sensor,
+                };
+                motion_blur(
+                    &mut self.frame,
+                    &mut self.blur_scratch,
+                    &self.rays,
+                    self.intrinsics.fx,
+                    self.intrinsics.fy,
+                    &motion,
+                    self.exposure_s,
+                );
+            }
             let mut rgb = vec![0u8; self.frame.linear.len()];
             self.noise
                 .apply_encode_srgb(&self.frame.linear, &mut rgb, &mut self.noise_rng);
@@ -273,7 +302,10 @@ impl SensorModel for Camera {
                     &mut self.depth_scratch,
                     &mut self.noise_rng,
                 );
-                let bytes: Vec<u8> = self.depth_mm.iter().flat_map(|d| d.to_le_bytes()).collect();
+                let mut bytes = vec![0u8; 2 * self.depth_mm.len()];
+                for (b, d) in bytes.chunks_exact_mut(2).zip(&self.depth_mm) {
+                    b.copy_from_slice(&d.to_le_bytes());
+                }
                 out.push(TimedMessage {
                     arrival,
                     msg: Message::Image(ImageMsg {
