@@ -12,7 +12,8 @@
 //! ```
 //!
 //! Sources are the estimators the scenario runs (`[estimators] run`), with the metrics of
-//! [`METRICS`], and the pseudo-source [`ROBOT_SOURCE`] (`robot`): the robot's own run
+//! [`METRICS`] (and, for the sources `[mapper]` maps, [`MAP_METRICS`]), and the
+//! pseudo-source [`ROBOT_SOURCE`] (`robot`): the robot's own run
 //! from ground truth, always available, with the metrics of [`ROBOT_METRICS`].
 //!
 //! ```
@@ -74,6 +75,53 @@ pub const METRICS: &[(&str, &str)] = &[
         "coverage",
         "fraction of ground-truth poses with an estimate within the time tolerance",
     ),
+];
+
+/// Map metrics of an estimate source that `[mapper]` maps (see `scenarios/defaults.toml`
+/// and [`crate::scoring::map`]).
+pub const MAP_METRICS: &[(&str, &str)] = &[
+    (
+        "map_accuracy_m",
+        "mean distance from the map's points to the true surfaces (m)",
+    ),
+    (
+        "map_completeness_m",
+        "mean distance from the true surfaces the cameras saw to the map (m)",
+    ),
+    (
+        "map_chamfer_m",
+        "mean of map_accuracy_m and map_completeness_m (m)",
+    ),
+    (
+        "map_precision_1cm",
+        "fraction of map points within 1 cm of the true surfaces",
+    ),
+    (
+        "map_precision_2cm",
+        "fraction of map points within 2 cm of the true surfaces",
+    ),
+    (
+        "map_precision_5cm",
+        "fraction of map points within 5 cm of the true surfaces",
+    ),
+    (
+        "map_recall_1cm",
+        "fraction of the seen true surface within 1 cm of the map",
+    ),
+    (
+        "map_recall_2cm",
+        "fraction of the seen true surface within 2 cm of the map",
+    ),
+    (
+        "map_recall_5cm",
+        "fraction of the seen true surface within 5 cm of the map",
+    ),
+    (
+        "map_f_score_1cm",
+        "F-score at 1 cm (harmonic mean of precision and recall)",
+    ),
+    ("map_f_score_2cm", "F-score at 2 cm"),
+    ("map_f_score_5cm", "F-score at 5 cm"),
 ];
 
 /// The pseudo-source of the robot's own run (ground truth against its route).
@@ -324,9 +372,11 @@ fn names(list: &[(&str, &str)]) -> String {
 /// Which metrics each kind of source has, for error messages.
 fn metrics_by_kind(sources: &[&str]) -> String {
     format!(
-        "estimate sources ({}) have: {}; `{ROBOT_SOURCE}` (the robot's own run) has: {}",
+        "estimate sources ({}) have: {}, and when [mapper] maps them: {}; `{ROBOT_SOURCE}` \
+         (the robot's own run) has: {}",
         sources.join(", "),
         names(METRICS),
+        names(MAP_METRICS),
         names(ROBOT_METRICS)
     )
 }
@@ -337,7 +387,7 @@ fn parse_ref(s: &str, sources: &[&str]) -> Result<MetricRef, ExpectationError> {
             "expected `<metric>.<source>` such as `ate_rmse_m.eif` or `collisions.robot`, found {s:?}"
         ))
     })?;
-    let estimate_metric = METRICS.iter().any(|(m, _)| *m == metric);
+    let estimate_metric = METRICS.iter().chain(MAP_METRICS).any(|(m, _)| *m == metric);
     let robot_metric = ROBOT_METRICS.iter().any(|(m, _)| *m == metric);
     if !estimate_metric && !robot_metric {
         return Err(ExpectationError(format!(
@@ -388,6 +438,16 @@ mod tests {
                 ("ate_rmse_m", "gnss") | ("d_m", "eif") => Some(r),
                 _ => None,
             })
+    }
+
+    #[test]
+    fn map_metric_names_are_those_map_scoring_computes() {
+        let ours: Vec<&str> = MAP_METRICS.iter().map(|m| m.0).collect();
+        assert_eq!(ours, crate::scoring::map::MapScore::METRIC_NAMES.to_vec());
+        let e = Expectation::parse("map_f_score_2cm.eif > 0.9 * map_f_score_2cm.gnss", SRC);
+        assert!(e.is_ok(), "{e:?}");
+        let e = Expectation::parse("map_f_score_2cm.robot > 0.5", SRC).unwrap_err();
+        assert!(e.0.contains("metric of estimate sources"), "{e}");
     }
 
     #[test]

@@ -11,11 +11,21 @@
 //! - [`expect`]: the expectation language of scenario files.
 //! - [`runner`]: world → motion → sensors → estimators → scoring → run folder.
 //! - [`report`]: `report.json` and `report.md`.
+//! - [`recording`]: every stream of a run to MCAP (ROS 2 profile) and back.
+//! - [`replay`]: the estimators on a recording (a vinebench run's or a robot's).
+//! - [`mapper`]: geo-referenced RGB-D map, GRVI, elevation, Ball-Pivoting mesh, exports
+//!   (behind the ground-truth firewall); [`mapping`] runs it in a scenario and scores it.
 
 pub mod bench;
+pub mod bench_mapper;
+pub mod bench_recording;
 pub mod estimator;
 pub mod expect;
 pub mod images;
+pub mod mapper;
+pub mod mapping;
+pub mod recording;
+pub mod replay;
 pub mod report;
 pub mod runner;
 pub mod scenario;

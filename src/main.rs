@@ -4,6 +4,8 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use vinebench::runner::{self, RunOptions};
 use vinebench::scenario::LoadedScenario;
 use vinebench::scoring::{self, metrics::PairsFrom};
@@ -15,6 +17,8 @@ const EXIT_PASS: u8 = 0;
 const EXIT_FAIL: u8 = 1;
 /// Exit code: bad input (scenario, URDF, TUM file, arguments) or an I/O failure.
 const EXIT_ERROR: u8 = 2;
+/// Exit code: interrupted by Ctrl-C (the recording so far is finalized).
+const EXIT_INTERRUPTED: u8 = 130;
 
 #[derive(Parser)]
 #[command(
@@ -26,7 +30,8 @@ const EXIT_ERROR: u8 = 2;
         and faults, the estimators to run and what must hold. `vinebench run` simulates it, \
         runs the estimators on the sensor messages alone, scores them against ground truth \
         and writes a run folder. The exit code tells CI whether the expectations held: \
-        0 all hold, 1 one fails, 2 bad input.",
+        0 all hold, 1 one fails, 2 bad input, 130 interrupted (Ctrl-C; the run folder keeps \
+        a finalized recording.mcap).",
     after_help = "Examples:\n  \
         vinebench run scenarios/row-loop-rtk.toml              run one scenario, folder in runs/\n  \
         vinebench run scenarios/poor-gnss.toml --out /tmp/r    choose the run folder\n  \
@@ -35,6 +40,7 @@ const EXIT_ERROR: u8 = 2;
         vinebench validate my-scenario.toml                    check a file without running it\n  \
         vinebench defaults > my-scenario.toml                  every key with its default\n  \
         vinebench score --ref runs/x/ground_truth.tum runs/x/estimate_eif.tum --align\n  \
+        vinebench replay runs/x/recording.mcap                 estimators on a recording\n  \
         vinebench bench                                        speed figures for docs/PERFORMANCE.md"
 )]
 struct Cli {
@@ -51,8 +57,11 @@ enum Command {
     #[command(after_help = "Examples:\n  \
         vinebench run scenarios/row-loop-rtk-outage.toml\n  \
         vinebench run scenarios/defaults.toml --out /tmp/defaults-run --quiet\n\n\
-        The run folder holds ground_truth.tum, estimate_<source>.tum, report.json, report.md \
-        (with trajectories.svg, errors.svg, altitude.svg), scenario.resolved.toml and timing.json.")]
+        The run folder holds recording.mcap (every message, ground truth and estimate; ROS 2 \
+        MCAP for Foxglove and `ros2 bag play`), ground_truth.tum, estimate_<source>.tum, \
+        report.json, report.md (with trajectories.svg, errors.svg, altitude.svg), \
+        scenario.resolved.toml and timing.json. Ctrl-C stops the run and finalizes the \
+        recording (exit code 130).")]
     Run {
         /// Scenario file.
         scenario: PathBuf,
@@ -90,6 +99,28 @@ enum Command {
     },
     /// Print scenarios/defaults.toml: every scenario key with its default and meaning.
     Defaults,
+    /// Run the estimators on a recording (MCAP, ROS 2 CDR) and write the outputs of a run.
+    #[command(after_help = "Examples:\n  \
+        vinebench replay runs/row-loop-rtk-20260101-120000/recording.mcap\n  \
+        vinebench replay field.mcap --config docs/field-topics.example.toml --out /tmp/field\n\n\
+        A vinebench recording replays with the scenario it recorded (metadata) and gives the \
+        live run's estimates bit for bit. A robot's recording needs a topic-mapping file \
+        (--config): which topic is the IMU, GNSS fix, tracking camera, wheel odometry; frame \
+        renames; the map origin (default: the first fix); estimator parameters. Unmapped \
+        topics and unsupported types are skipped and counted. A damaged or truncated file \
+        replays what it still holds. The folder gets estimate_<source>.tum, ground_truth.tum \
+        (from /ground_truth/odom, used for scoring), report.json, report.md. Exit code: 0 \
+        expectations hold (or none), 1 one fails, 2 nothing usable or bad input.")]
+    Replay {
+        /// The recording (`.mcap`).
+        recording: PathBuf,
+        /// Topic-mapping file (TOML) for recordings not made by vinebench.
+        #[arg(long, value_name = "TOML")]
+        config: Option<PathBuf>,
+        /// Output folder (default: runs/replay-<name>-<UTC stamp>/).
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
     /// Score a TUM trajectory against a reference, like evo_ape / evo_rpe.
     #[command(after_help = "Example:\n  \
         vinebench score --ref ground_truth.tum estimate_eif.tum --align\n\
@@ -100,9 +131,11 @@ enum Command {
         /// Fewer repetitions (a quick look, noisier figures).
         #[arg(long)]
         quick: bool,
-        /// Which figures: `all`, `core` (estimator, physics, no-camera scenario) or
-        /// `render` (ray casting, shading, camera scenarios).
-        #[arg(long, default_value = "all", value_parser = ["all", "core", "render"])]
+        /// Which figures: `all`, `core` (estimator, physics, no-camera scenario),
+        /// `render` (ray casting, shading, camera scenarios), `recording` (MCAP write and
+        /// read speed, a run's slowdown by its recording) or `mapper` (voxel downsampling,
+        /// Ball-Pivoting, memory of mapping a row loop).
+        #[arg(long, default_value = "all", value_parser = ["all", "core", "render", "recording", "mapper"])]
         only: String,
     },
 }
@@ -158,9 +191,16 @@ fn dispatch(cmd: Command) -> Result<u8> {
             let opts = RunOptions {
                 out_dir: out,
                 progress: !quiet,
+                stop: Some(interrupt_flag()),
                 ..RunOptions::default()
             };
-            let outcome = runner::run(&sc, &opts)?;
+            let outcome = match runner::run(&sc, &opts) {
+                Err(e @ runner::RunError::Interrupted { .. }) => {
+                    eprintln!("{e}; the recording so far is finalized in the run folder");
+                    return Ok(EXIT_INTERRUPTED);
+                }
+                r => r?,
+            };
             if !quiet {
                 print_summary(&outcome);
             }
@@ -194,14 +234,54 @@ fn dispatch(cmd: Command) -> Result<u8> {
             Ok(EXIT_PASS)
         }
         Command::Score(a) => score(&a),
+        Command::Replay {
+            recording,
+            config,
+            out,
+        } => {
+            let opts = vinebench::replay::ReplayOptions {
+                config,
+                out_dir: out,
+                runs_root: PathBuf::from("runs"),
+            };
+            let o = vinebench::replay::replay(&recording, &opts)?;
+            let r = &o.report;
+            if let Some(d) = &r.damage {
+                eprintln!("warning: {}: damaged recording: {d}", recording.display());
+            }
+            let skipped: u64 = r.skipped.values().sum();
+            let replayed: u64 = r.replayed.values().sum();
+            println!(
+                "{}: {replayed} messages replayed, {skipped} skipped, {} did not decode",
+                r.name,
+                r.decode_errors.values().map(|(n, _)| n).sum::<u64>()
+            );
+            for s in &r.sources {
+                let ate = s
+                    .score
+                    .as_ref()
+                    .and_then(|x| x.metric("ate_rmse_m"))
+                    .map(|v| format!("ATE {v:.3} m"))
+                    .unwrap_or_else(|| "no ground truth".into());
+                println!("{:<16} {:>7} poses  {ate}", s.name, s.poses);
+            }
+            print_verdict(&r.expectations, r.passed, &o.dir);
+            Ok(if r.passed { EXIT_PASS } else { EXIT_FAIL })
+        }
         Command::Bench { quick, only } => {
             eprintln!("measuring (about {} s)...", if quick { 60 } else { 240 });
             let mut figures = Vec::new();
-            if only != "render" {
+            if only == "all" || only == "core" {
                 figures.extend(vinebench::bench::run_all(quick)?);
             }
-            if only != "core" {
+            if only == "all" || only == "render" {
                 figures.extend(vinebench::bench::render_figures(quick)?);
+            }
+            if only == "all" || only == "recording" {
+                figures.extend(vinebench::bench_recording::recording_figures(quick)?);
+            }
+            if only == "all" || only == "mapper" {
+                figures.extend(vinebench::bench_mapper::mapper_figures(quick)?);
             }
             println!("| figure | value | target |\n|---|---:|---:|");
             for f in figures {
@@ -231,6 +311,26 @@ fn dispatch(cmd: Command) -> Result<u8> {
             Ok(EXIT_PASS)
         }
     }
+}
+
+/// A flag that the first Ctrl-C (SIGINT) sets, so a run stops cleanly and finalizes its
+/// recording; a second Ctrl-C exits at once. Installed once per process.
+fn interrupt_flag() -> Arc<AtomicBool> {
+    static FLAG: std::sync::OnceLock<Arc<AtomicBool>> = std::sync::OnceLock::new();
+    FLAG.get_or_init(|| {
+        let flag = Arc::new(AtomicBool::new(false));
+        let f = flag.clone();
+        if let Err(e) = ctrlc::set_handler(move || {
+            if f.swap(true, Ordering::SeqCst) {
+                std::process::exit(i32::from(EXIT_INTERRUPTED));
+            }
+            eprintln!("\ninterrupted: stopping the run and finalizing its recording (Ctrl-C again to quit now)");
+        }) {
+            eprintln!("warning: cannot handle Ctrl-C ({e}); an interrupted run's recording may be unfinished");
+        }
+        flag
+    })
+    .clone()
 }
 
 fn print_summary(o: &runner::RunOutcome) {
@@ -281,13 +381,18 @@ fn print_summary(o: &runner::RunOutcome) {
         robot.metrics.max_heading_error_deg,
         robot.metrics.max_tilt_deg
     );
-    for x in &r.expectations {
+    print_verdict(&r.expectations, r.passed, &o.dir);
+}
+
+/// Each expectation's outcome, then PASS/FAIL and where the report is.
+fn print_verdict(expectations: &[vinebench::expect::ExpectationResult], passed: bool, dir: &Path) {
+    for x in expectations {
         println!("{x}");
     }
     println!(
         "{} — report: {}",
-        if r.passed { "PASS" } else { "FAIL" },
-        o.dir.join("report.md").display()
+        if passed { "PASS" } else { "FAIL" },
+        dir.join("report.md").display()
     );
 }
 
@@ -354,6 +459,7 @@ fn check(paths: &[PathBuf], runs: &Path, shard: Option<&str>) -> Result<u8> {
             .and_then(|sc| {
                 let opts = RunOptions {
                     runs_root: runs.to_path_buf(),
+                    stop: Some(interrupt_flag()),
                     ..RunOptions::default()
                 };
                 Ok(runner::run(&sc, &opts)?)

@@ -37,6 +37,10 @@ pub struct Report {
     pub robot: RobotReport,
     /// One entry per estimator, in the order of `[estimators] run`.
     pub sources: Vec<SourceReport>,
+    /// One entry per mapped source, in the order of `[mapper] sources` (absent when
+    /// mapping is off).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub maps: Vec<crate::mapping::MapReport>,
     /// Expectation outcomes, in file order.
     pub expectations: Vec<ExpectationResult>,
     /// True when every expectation holds.
@@ -269,7 +273,11 @@ impl Report {
         expectations: Vec<ExpectationResult>,
     ) -> Report {
         let s = &sc.scenario;
-        let Scores { sources, robot } = scores;
+        let Scores {
+            sources,
+            robot,
+            maps,
+        } = scores;
         let sources = sim
             .estimates
             .iter()
@@ -319,6 +327,7 @@ impl Report {
             ground_truth: metrics::closed_loop(&sim.truth).ok(),
             robot,
             sources,
+            maps,
             expectations,
             passed,
         }
@@ -434,6 +443,10 @@ impl Report {
             );
         }
 
+        if !self.maps.is_empty() {
+            md.push_str(&maps_markdown(&self.maps));
+        }
+
         let _ = writeln!(
             md,
             "\n## Plots\n\n![Trajectories, top view](trajectories.svg)\n\n\
@@ -480,6 +493,61 @@ impl Report {
         );
         md
     }
+}
+
+/// The `## Maps` section: one row per mapped source.
+fn maps_markdown(maps: &[crate::mapping::MapReport]) -> String {
+    let mut md = String::new();
+    let _ = writeln!(
+        md,
+        "\n## Maps (seed paper sections 4-5)\n\n\
+         Each map is built from the RGB-D frames placed with one source's estimated poses, \
+         and scored against the true surfaces of the render geometry: accuracy = map → truth \
+         distance, completeness = truth the cameras came near → map distance (means), \
+         F-score at 1/2/5 cm. Files: `map.ply` (colour, normals, GRVI, elevation), \
+         `map_grvi.ply`, `map_elevation.ply`; the main map also `mesh.ply`, `mesh.obj`, \
+         the Gazebo model `vinebench_map/` and `vinebench_map.mjcf.xml`.\n\n\
+         | Source | folder | frames | points | vegetation | triangles | accuracy [m] | completeness [m] | chamfer [m] | F@1cm | F@2cm | F@5cm |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+    );
+    for m in maps {
+        let v = |k: &str| fmt_opt(m.metric(k), 4);
+        let st = &m.stats;
+        let _ = writeln!(
+            md,
+            "| {} | `{}/` | {} | {} | {:.0} % | {} | {} | {} | {} | {} | {} | {} |",
+            m.source,
+            m.folder,
+            st.frames_integrated,
+            st.voxels,
+            100.0 * st.vegetation_points as f64 / st.voxels.max(1) as f64,
+            st.mesh_triangles,
+            v("map_accuracy_m"),
+            v("map_completeness_m"),
+            v("map_chamfer_m"),
+            fmt_opt(m.metric("map_f_score_1cm"), 3),
+            fmt_opt(m.metric("map_f_score_2cm"), 3),
+            fmt_opt(m.metric("map_f_score_5cm"), 3),
+        );
+    }
+    let skipped: Vec<String> = maps
+        .iter()
+        .filter(|m| {
+            let s = &m.stats;
+            s.frames_outside_trajectory + s.frames_incomplete + s.frames_unposed > 0
+        })
+        .map(|m| {
+            let s = &m.stats;
+            format!(
+                "{}: {} outside the trajectory, {} incomplete, {} without a pose in time",
+                m.source, s.frames_outside_trajectory, s.frames_incomplete, s.frames_unposed
+            )
+        })
+        .collect();
+    if !skipped.is_empty() {
+        let _ = writeln!(md, "\nFrames not mapped: {}.", skipped.join("; "));
+    }
+    md
 }
 
 fn fmt_opt(v: Option<f64>, digits: usize) -> String {

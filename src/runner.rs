@@ -3,10 +3,12 @@
 //! [`simulate`] is the pure part (no files): it builds the world, robot, route, motion
 //! model, sensors and estimators from a scenario and steps them in time order. Sensor
 //! messages reach the estimators in *arrival* order (stamp + latency), as on a robot.
-//! [`run`] adds the outputs: the run folder with TUM files, report and plots.
+//! [`run`] adds the outputs: the run folder with TUM files, report, plots and
+//! `recording.mcap` (every message, ground truth and estimate; see [`crate::recording`]).
 
 use crate::estimator::{EstimatorError, EstimatorOutput, EstimatorSet, SensorFrames, StageStats};
-use crate::expect::{ExpectationResult, ROBOT_SOURCE};
+use crate::expect::{ExpectationResult, ROBOT_METRICS, ROBOT_SOURCE};
+use crate::recording::{self, RecordItem, Recorder, RecordingError, SinkOptions};
 use crate::report::{self, Report, RobotReport};
 use crate::scenario::{LoadedScenario, ScenarioError};
 use crate::scoring::{self, SourceScore};
@@ -18,6 +20,7 @@ use std::collections::{BTreeMap, BinaryHeap};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 use thiserror::Error;
 use vinebench_msgs::geodesy::{LocalEnu, normal_gravity};
@@ -43,6 +46,18 @@ pub enum RunError {
     /// The robot description is unusable.
     #[error(transparent)]
     Robot(#[from] RobotError),
+    /// The recording could not be written.
+    #[error(transparent)]
+    Recording(#[from] RecordingError),
+    /// The mapper could not build or write a map.
+    #[error("mapper: {0}")]
+    Mapper(#[from] crate::mapper::MapperError),
+    /// The run was interrupted (Ctrl-C); the recording so far is finalized.
+    #[error("interrupted after {simulated_s:.1} s simulated")]
+    Interrupted {
+        /// Simulated time when the run stopped, s.
+        simulated_s: f64,
+    },
     /// Writing the run folder failed.
     #[error("{path}: {source}")]
     Io {
@@ -93,6 +108,8 @@ pub struct Simulation {
     pub robot: RobotMetrics,
     /// Fault windows in absolute time.
     pub fault_windows: Vec<(Nanos, Nanos)>,
+    /// The maps of `[mapper]` with what scoring needs (`None` when mapping is off).
+    pub mapping: Option<crate::mapping::MappingOutput>,
 }
 
 /// A time limit that ends a simulation whose motion has not finished.
@@ -112,6 +129,8 @@ pub struct Scores {
     pub sources: Vec<(String, SourceScore)>,
     /// The robot's own run (the expectations' pseudo-source `robot`).
     pub robot: RobotReport,
+    /// One map score per mapped source (empty when `[mapper]` is off).
+    pub maps: Vec<crate::mapping::MapReport>,
 }
 
 impl Scores {
@@ -119,6 +138,13 @@ impl Scores {
     pub fn metric(&self, metric: &str, source: &str) -> Option<f64> {
         if source == ROBOT_SOURCE {
             return self.robot.metric(metric);
+        }
+        if crate::mapping::is_map_metric(metric) {
+            return self
+                .maps
+                .iter()
+                .find(|m| m.source == source)
+                .and_then(|m| m.metric(metric));
         }
         self.sources
             .iter()
@@ -156,6 +182,9 @@ impl Ord for InFlight {
     }
 }
 
+/// The recording in a run folder.
+pub const RECORDING_FILE: &str = "recording.mcap";
+
 /// Options of [`run`].
 #[derive(Clone, Debug)]
 pub struct RunOptions {
@@ -165,6 +194,9 @@ pub struct RunOptions {
     pub runs_root: PathBuf,
     /// Show a progress bar on stderr (only when it is a terminal).
     pub progress: bool,
+    /// Set (by a Ctrl-C handler) to stop the run cleanly: the simulation ends at its next
+    /// step and the recording is finalized.
+    pub stop: Option<Arc<AtomicBool>>,
 }
 
 impl Default for RunOptions {
@@ -173,6 +205,7 @@ impl Default for RunOptions {
             out_dir: None,
             runs_root: PathBuf::from("runs"),
             progress: true,
+            stop: None,
         }
     }
 }
@@ -213,6 +246,13 @@ pub struct Setup {
     pub png_dir: Option<PathBuf>,
     /// The estimation stage.
     pub estimators: EstimatorSet,
+    /// Where every message, the ground truth and the estimates are recorded (MCAP); set
+    /// by [`run`], `None` for a simulation without files.
+    pub recorder: Option<Recorder>,
+    /// When set, the simulation stops at its next step with [`RunError::Interrupted`].
+    pub stop: Option<Arc<AtomicBool>>,
+    /// The mappers of `[mapper]` (`None` when mapping is off).
+    pub mapping: Option<crate::mapping::MappingStage>,
 }
 
 /// Builds the world, robot, route, motion model, sensors and estimators of a scenario;
@@ -332,6 +372,7 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
             tracking_camera: &s.sensors.tracking_camera.frame,
         })
         .map_err(estimator_error)?;
+    let mapping = crate::mapping::MappingStage::from_scenario(sc, &robot.static_transforms)?;
     Ok(Setup {
         world,
         robot,
@@ -341,6 +382,9 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         renderer,
         png_dir: None,
         estimators,
+        recorder: None,
+        stop: None,
+        mapping,
     })
 }
 
@@ -367,11 +411,16 @@ pub fn simulate_setup(
     let s = &sc.scenario;
     let Setup {
         world,
+        robot,
         mut motion,
         mut tracking,
         mut sensors,
         mut estimators,
         png_dir,
+        mut recorder,
+        stop,
+        mut mapping,
+        renderer,
         ..
     } = built;
     let mut png = png_dir.map(|d| crate::images::PngDump::new(&d, s.render.debug_png_every));
@@ -402,8 +451,24 @@ pub fn simulate_setup(
     let mut last_odometer = 0.0;
     let mut route_completed = false;
     let mut stopped_by = None;
+    if let Some(rec) = &mut recorder {
+        rec.send(RecordItem::Metadata(
+            recording::META_SCENARIO.to_string(),
+            scenario_metadata(sc),
+        ));
+        rec.send(RecordItem::StaticTransforms(
+            robot.static_transforms.clone(),
+            start,
+        ));
+    }
 
     loop {
+        if stop.as_ref().is_some_and(|f| f.load(Ordering::Relaxed)) {
+            // Dropping the recorder on the way out finalizes the file.
+            return Err(RunError::Interrupted {
+                simulated_s: (last_t - start).as_secs_f64(),
+            });
+        }
         let next_sensor = sensors.iter().map(|x| x.next_time()).min();
         let t = match next_sensor {
             Some(ts) => ts.min(gt_time(gt_index)),
@@ -422,11 +487,15 @@ pub fn simulate_setup(
         last_odometer = state.odometer_m;
         if t == gt_time(gt_index) {
             tracking.push(&state);
-            truth.push(PoseSample {
+            let sample = PoseSample {
                 stamp: t,
                 world_from_body: state.world_from_body,
                 covariance: None,
-            });
+            };
+            if let Some(rec) = &mut recorder {
+                rec.send(RecordItem::Truth(sample.clone()));
+            }
+            truth.push(sample);
             gt_index += 1;
         }
         for sensor in sensors.iter_mut() {
@@ -445,6 +514,13 @@ pub fn simulate_setup(
         while pending.peek().is_some_and(|p| p.0.tm.arrival <= t) {
             if let Some(Reverse(p)) = pending.pop() {
                 estimators.push(&p.tm);
+                if let Some(m) = &mut mapping {
+                    m.push(&p.tm.msg, &estimators)?;
+                }
+                // Written in delivery order: a replay restores it exactly.
+                if let Some(rec) = &mut recorder {
+                    rec.send(RecordItem::Message(p.tm));
+                }
             }
         }
         if let Some(pb) = progress {
@@ -458,9 +534,19 @@ pub fn simulate_setup(
     // Deliver what is still in flight, in arrival order.
     while let Some(Reverse(p)) = pending.pop() {
         estimators.push(&p.tm);
+        if let Some(m) = &mut mapping {
+            m.push(&p.tm.msg, &estimators)?;
+        }
+        if let Some(rec) = &mut recorder {
+            rec.send(RecordItem::Message(p.tm));
+        }
     }
     let out = estimators.finish();
     let (estimates, stage) = (out.estimators, out.stage);
+    let mapping = match (mapping, renderer) {
+        (Some(m), Some(truth)) => Some(m.finish(&estimates, truth)?),
+        _ => None,
+    };
     let fault_windows = s
         .faults
         .gnss
@@ -472,7 +558,7 @@ pub fn simulate_setup(
             )
         })
         .collect();
-    Ok(Simulation {
+    let sim = Simulation {
         truth,
         estimates,
         stage,
@@ -486,7 +572,72 @@ pub fn simulate_setup(
         stopped_by,
         robot: tracking.metrics(),
         fault_windows,
-    })
+        mapping,
+    };
+    if let Some(mut rec) = recorder {
+        if let Some(m) = &sim.mapping {
+            // Each map as a cloud in `world`, stamped at the end of the run.
+            for sm in &m.maps {
+                let c = &sm.map.cloud;
+                rec.send(RecordItem::PointCloud2(
+                    recording::topics::map_points(&sm.source),
+                    recording::ros::PointCloud2Msg::xyz_rgb(
+                        last_t,
+                        vinebench_msgs::FrameId::new(vinebench_msgs::frames::names::WORLD),
+                        &c.positions,
+                        &c.colors,
+                        &[("grvi", &c.grvi), ("elevation", &c.elevation)],
+                    ),
+                ));
+            }
+        }
+        for (i, e) in sim.estimates.iter().enumerate() {
+            rec.send(RecordItem::Trajectory {
+                topic: recording::topics::estimate_odom(e.name),
+                tf_topic: (i == 0).then(|| recording::topics::TF.to_string()),
+                trajectory: e.trajectory.clone(),
+            });
+        }
+        rec.send(RecordItem::Metadata(
+            recording::META_RUN.to_string(),
+            run_metadata(&sim),
+        ));
+        rec.finish()?;
+    }
+    Ok(sim)
+}
+
+/// The [`recording::META_SCENARIO`] record of a run: what a replay needs to rebuild the
+/// estimators exactly.
+fn scenario_metadata(sc: &LoadedScenario) -> BTreeMap<String, String> {
+    let o = &sc.scenario.origin;
+    BTreeMap::from([
+        (recording::META_KEY_TOML.to_string(), sc.resolved_toml()),
+        ("file".to_string(), sc.file.clone()),
+        ("origin_lat_deg".to_string(), format!("{:?}", o.lat_deg)),
+        ("origin_lon_deg".to_string(), format!("{:?}", o.lon_deg)),
+        ("origin_alt_m".to_string(), format!("{:?}", o.alt_m)),
+        ("start_ns".to_string(), sc.start.0.to_string()),
+        (
+            "vinebench_version".to_string(),
+            env!("CARGO_PKG_VERSION").to_string(),
+        ),
+    ])
+}
+
+/// The [`recording::META_RUN`] record: the robot's truth-only metrics (what the
+/// expectations' pseudo-source `robot` answers) and how the run ended.
+fn run_metadata(sim: &Simulation) -> BTreeMap<String, String> {
+    let robot = RobotReport::new(sim);
+    let mut m: BTreeMap<String, String> = ROBOT_METRICS
+        .iter()
+        .filter_map(|(name, _)| Some((name.to_string(), format!("{:?}", robot.metric(name)?))))
+        .collect();
+    m.insert("outcome".to_string(), robot.outcome.to_string());
+    m.insert("world_digest".to_string(), sim.world_digest.clone());
+    m.insert("distance_m".to_string(), format!("{:?}", sim.distance_m));
+    m.insert("duration_s".to_string(), format!("{:?}", sim.duration_s));
+    m
 }
 
 /// Scores every estimate against the truth (in parallel; each source is independent,
@@ -510,6 +661,11 @@ pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Scores {
     Scores {
         sources,
         robot: RobotReport::new(sim),
+        maps: sim
+            .mapping
+            .as_ref()
+            .map(crate::mapping::score)
+            .unwrap_or_default(),
     }
 }
 
@@ -538,6 +694,11 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
     }
     let resolved = dir.join("scenario.resolved.toml");
     std::fs::write(&resolved, sc.resolved_toml()).map_err(io_err(&resolved))?;
+    built.recorder = Some(Recorder::create(
+        &dir.join(RECORDING_FILE),
+        &SinkOptions::from_params(&sc.scenario.recording),
+    )?);
+    built.stop = opts.stop.clone();
 
     let bar = (opts.progress && std::io::stderr().is_terminal()).then(|| {
         let pb = ProgressBar::new(1);
@@ -569,12 +730,19 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
     let expectations = evaluate(sc, &scores);
     let report = Report::new(sc, &sim, scores, expectations);
     report::write(&dir, &sim, &report)?;
-    let timing = serde_json::json!({
+    if let Some(m) = &sim.mapping {
+        crate::mapping::export(&dir, m)?;
+    }
+    let mut timing = serde_json::json!({
         "wall_s": wall_s,
         "simulated_s": sim.duration_s,
         "real_time_factor": if wall_s > 0.0 { sim.duration_s / wall_s } else { f64::INFINITY },
         "threads": rayon::current_num_threads(),
     });
+    if let Some(m) = &sim.mapping {
+        // Part of wall_s: integrating frames during the run and finishing the maps.
+        timing["mapping_s"] = serde_json::json!(m.wall_s);
+    }
     let tp = dir.join("timing.json");
     std::fs::write(&tp, format!("{timing:#}\n")).map_err(io_err(&tp))?;
     Ok(RunOutcome {
@@ -589,7 +757,7 @@ fn img_dir(d: &crate::images::PngDump) -> PathBuf {
 }
 
 /// `YYYYMMDD-HHMMSS` of the current UTC time (names default run folders).
-fn utc_stamp() -> String {
+pub(crate) fn utc_stamp() -> String {
     let secs = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_secs() as i64)

@@ -66,6 +66,10 @@ pub struct Scenario {
     pub estimators: EstimatorsParams,
     /// `[scoring]`.
     pub scoring: ScoringParams,
+    /// `[recording]`.
+    pub recording: crate::recording::RecordingParams,
+    /// `[mapper]`.
+    pub mapper: crate::mapping::MappingParams,
     /// Expectations, in the expectation language (see [`crate::expect`]).
     pub expect: Vec<String>,
 }
@@ -282,6 +286,7 @@ impl LoadedScenario {
             }
         }
         s.scoring.validate().map_err(|e| self.param_error(e))?;
+        s.recording.validate().map_err(|e| self.param_error(e))?;
         for (i, f) in s.faults.gnss.iter().enumerate() {
             if !(f.start_s.is_finite()
                 && f.end_s.is_finite()

@@ -262,6 +262,17 @@ impl EstimatorSet {
         }
     }
 
+    /// The trajectory so far of estimator `kind`, if it runs: what the messages released
+    /// so far have produced (a mapper places camera frames with it as the run goes on).
+    pub fn trajectory(&self, kind: EstimatorKind) -> Option<&Trajectory> {
+        let i = self.run.iter().position(|k| *k == kind)?;
+        Some(match self.estimators.get(i)? {
+            AnyEstimator::Eif(e) => e.trajectory(),
+            AnyEstimator::Gnss(e) => e.trajectory(),
+            AnyEstimator::TrackingCamera(e) => e.trajectory(),
+        })
+    }
+
     /// The stage counters so far.
     pub fn stage_stats(&self) -> &StageStats {
         &self.stage

@@ -4,11 +4,14 @@
 //! - [`align`]: evo's time association and Umeyama alignment.
 //! - [`metrics`]: evo-compatible ATE/RPE, the seed paper's closed-loop metrics (Table 1),
 //!   errors in fault windows, coverage, and [`metrics::score_source`] bundling them.
+//! - [`map`]: a mapper's cloud against the world's true surfaces (accuracy, completeness,
+//!   chamfer, F-score).
 //! - [`plots`]: SVG plots of trajectories, errors over time and altitude.
 //!
 //! `scripts/evo_crosscheck.py` prints evo's numbers for two TUM files, to compare.
 
 pub mod align;
+pub mod map;
 pub mod metrics;
 pub mod plots;
 pub mod tum;

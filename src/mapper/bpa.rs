@@ -1,0 +1,446 @@
+//! Ball-Pivoting surface reconstruction (Bernardini, Mittleman, Rushmeier, Silva and
+//! Taubin, "The Ball-Pivoting Algorithm for Surface Reconstruction", IEEE TVCG 1999).
+//!
+//! A ball of radius ρ that touches three points without containing any other forms a
+//! triangle. Starting from a seed triangle, the ball pivots around each edge of the
+//! *front* (the boundary of the mesh so far) until it touches a new point; that point and
+//! the edge make the next triangle. Edges where the ball touches nothing (or only a point
+//! that would break the manifold) become *boundary* edges. When the front is exhausted a
+//! new seed is searched among the unused points. With several radii (ascending), each
+//! later pass re-activates the boundary edges whose triangle admits an empty ball of the
+//! new radius and goes on pivoting, which closes holes left by sparse sampling.
+//!
+//! Orientation: triangles are counter-clockwise seen from the side the point normals
+//! point to; the ball centre lies on that side. Every directed edge belongs to at most one
+//! triangle and every undirected edge to at most two, so the output is an oriented,
+//! edge-manifold mesh.
+//!
+//! Neighbour queries use a uniform hash grid of cell 2ρ ([`PointGrid`]): every point a
+//! ball of radius ρ can touch while pivoting about an edge lies within 2ρ of the edge's
+//! midpoint. The pivoting itself is sequential (each step depends on the front); the
+//! grids are built in parallel.
+
+use super::grid::{PointGrid, dist2};
+use rustc_hash::FxHashMap;
+use std::collections::VecDeque;
+
+/// Relative tolerance of the empty-ball test (points this close to the sphere count as
+/// on it, not inside).
+const EMPTY_BALL_TOLERANCE: f64 = 1e-9;
+/// Seed search looks at this many nearest unused neighbours of a candidate vertex.
+const SEED_NEIGHBOURS: usize = 12;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum EdgeState {
+    /// On the front, to be pivoted.
+    Active,
+    /// On the front; pivoting found nothing (with the current radius).
+    Boundary,
+    /// Shared by two triangles.
+    Inner,
+}
+
+/// A directed edge `s → t` of the triangle `(s, t, o)` (counter-clockwise).
+#[derive(Clone, Copy, Debug)]
+struct Edge {
+    s: u32,
+    t: u32,
+    o: u32,
+    /// Centre of the ball that made the triangle.
+    center: [f64; 3],
+    state: EdgeState,
+}
+
+/// Counters of one reconstruction.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BpaStats {
+    /// Seed triangles found.
+    pub seeds: usize,
+    /// Pivots that produced a triangle.
+    pub pivots: usize,
+    /// Edges left on the boundary at the end.
+    pub boundary_edges: usize,
+}
+
+struct Bpa<'a> {
+    p: &'a [[f64; 3]],
+    n: &'a [[f64; 3]],
+    edges: Vec<Edge>,
+    directed: FxHashMap<u64, u32>,
+    used: Vec<bool>,
+    front_deg: Vec<u32>,
+    queue: VecDeque<u32>,
+    triangles: Vec<[u32; 3]>,
+    stats: BpaStats,
+}
+
+#[inline]
+fn dkey(s: u32, t: u32) -> u64 {
+    (u64::from(s) << 32) | u64::from(t)
+}
+#[inline]
+fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+#[inline]
+fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+#[inline]
+fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Centre of the ball of radius `rho` through `a`, `b`, `c` on the side of the
+/// counter-clockwise normal `(b − a) × (c − a)`, with that (unnormalised) normal; `None`
+/// for a degenerate triangle or a circumradius above `rho`.
+#[inline]
+fn ball_center(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], rho: f64) -> Option<([f64; 3], [f64; 3])> {
+    let ab = sub(b, a);
+    let ac = sub(c, a);
+    let nrm = cross(&ab, &ac);
+    let l2 = dot(&nrm, &nrm);
+    let scale = dot(&ab, &ab) * dot(&ac, &ac);
+    if l2.is_nan() || l2 <= 1e-12 * scale || l2 <= 0.0 {
+        return None;
+    }
+    let t1 = cross(&nrm, &ab);
+    let t2 = cross(&ac, &nrm);
+    let (wa, wb) = (dot(&ac, &ac), dot(&ab, &ab));
+    let inv = 0.5 / l2;
+    let off = [
+        (wa * t1[0] + wb * t2[0]) * inv,
+        (wa * t1[1] + wb * t2[1]) * inv,
+        (wa * t1[2] + wb * t2[2]) * inv,
+    ];
+    let h2 = rho * rho - dot(&off, &off);
+    if h2 < 0.0 {
+        return None;
+    }
+    let h = (h2 / l2).sqrt();
+    Some((
+        [
+            a[0] + off[0] + nrm[0] * h,
+            a[1] + off[1] + nrm[1] * h,
+            a[2] + off[2] + nrm[2] * h,
+        ],
+        nrm,
+    ))
+}
+
+impl Bpa<'_> {
+    /// Whether a vertex may join a new triangle: unused, or on the front.
+    fn available(&self, v: u32) -> bool {
+        !self.used[v as usize] || self.front_deg[v as usize] > 0
+    }
+
+    /// Adds triangle `(a, b, c)` if it keeps the mesh oriented and edge-manifold.
+    fn add_triangle(&mut self, tri: [u32; 3], center: [f64; 3]) -> bool {
+        let [a, b, c] = tri;
+        if a == b
+            || b == c
+            || a == c
+            || !self.available(a)
+            || !self.available(b)
+            || !self.available(c)
+        {
+            return false;
+        }
+        let sides = [(a, b, c), (b, c, a), (c, a, b)];
+        if sides
+            .iter()
+            .any(|&(x, y, _)| self.directed.contains_key(&dkey(x, y)))
+        {
+            return false;
+        }
+        self.triangles.push(tri);
+        for &(x, y, o) in &sides {
+            let id = self.edges.len() as u32;
+            let state = match self.directed.get(&dkey(y, x)) {
+                Some(&twin) => {
+                    let tw = &mut self.edges[twin as usize];
+                    if tw.state != EdgeState::Inner {
+                        tw.state = EdgeState::Inner;
+                        self.front_deg[x as usize] -= 1;
+                        self.front_deg[y as usize] -= 1;
+                    }
+                    EdgeState::Inner
+                }
+                None => {
+                    self.front_deg[x as usize] += 1;
+                    self.front_deg[y as usize] += 1;
+                    self.queue.push_back(id);
+                    EdgeState::Active
+                }
+            };
+            self.edges.push(Edge {
+                s: x,
+                t: y,
+                o,
+                center,
+                state,
+            });
+            self.directed.insert(dkey(x, y), id);
+        }
+        for v in tri {
+            self.used[v as usize] = true;
+        }
+        true
+    }
+
+    fn normals_agree(&self, nrm: &[f64; 3], vs: [u32; 3]) -> bool {
+        vs.iter().all(|&v| dot(nrm, &self.n[v as usize]) > 0.0)
+    }
+
+    /// Pivots the ball about front edge `id`; adds the triangle or marks the edge
+    /// boundary.
+    fn pivot(&mut self, id: u32, grid: &PointGrid, rho: f64) {
+        let e = self.edges[id as usize];
+        let (ps, pt) = (&self.p[e.s as usize], &self.p[e.t as usize]);
+        let m = [
+            0.5 * (ps[0] + pt[0]),
+            0.5 * (ps[1] + pt[1]),
+            0.5 * (ps[2] + pt[2]),
+        ];
+        let axis = sub(pt, ps);
+        let u0 = sub(&e.center, &m);
+        let reach2 = 4.0 * rho * rho;
+        let mut best: Option<(f64, u32, [f64; 3])> = None;
+        grid.for_each_near(&m, |k| {
+            if k == e.s || k == e.t || k == e.o {
+                return;
+            }
+            let pk = &self.p[k as usize];
+            if dist2(pk, &m) > reach2 {
+                return;
+            }
+            // The new triangle (t, s, k) shares the edge reversed.
+            let Some((c, nrm)) = ball_center(pt, ps, pk, rho) else {
+                return;
+            };
+            if !self.normals_agree(&nrm, [e.s, e.t, k]) {
+                return;
+            }
+            let u1 = sub(&c, &m);
+            let mut angle = dot(&axis, &cross(&u0, &u1)).atan2(dot(&u0, &u1));
+            if angle < 0.0 {
+                angle += std::f64::consts::TAU;
+            }
+            if best.is_none_or(|(a, bk, _)| angle < a || (angle == a && k < bk)) {
+                best = Some((angle, k, c));
+            }
+        });
+        // A vertex already in the mesh may only close the front locally: it must share a
+        // front edge with `s` or `t`. Joining a distant part of the front would pinch the
+        // surface at that vertex (not manifold) and, in noisy volumetric clouds such as
+        // foliage, lets triangles multiply without bound.
+        let added = match best {
+            Some((_, k, c)) => {
+                let local = !self.used[k as usize]
+                    || self.directed.contains_key(&dkey(k, e.s))
+                    || self.directed.contains_key(&dkey(e.t, k));
+                local && self.add_triangle([e.t, e.s, k], c)
+            }
+            None => false,
+        };
+        if added {
+            self.stats.pivots += 1;
+        } else if self.edges[id as usize].state == EdgeState::Active {
+            self.edges[id as usize].state = EdgeState::Boundary;
+        }
+    }
+
+    /// Whether no point other than `skip` lies strictly inside the ball.
+    fn ball_is_empty(&self, grid: &PointGrid, center: &[f64; 3], rho: f64, skip: [u32; 3]) -> bool {
+        let r2 = rho * rho * (1.0 - EMPTY_BALL_TOLERANCE);
+        let mut empty = true;
+        grid.for_each_near(center, |q| {
+            if empty && !skip.contains(&q) && dist2(&self.p[q as usize], center) < r2 {
+                empty = false;
+            }
+        });
+        empty
+    }
+
+    /// Tries to start a new triangle at unused vertex `v`.
+    fn seed(&mut self, v: u32, grid: &PointGrid, rho: f64, scratch: &mut Vec<u32>) -> bool {
+        let pv = self.p[v as usize];
+        scratch.clear();
+        grid.within(self.p, &pv, 2.0 * rho, scratch);
+        scratch.retain(|&q| q != v && !self.used[q as usize]);
+        let nearer = |a: &u32, b: &u32| {
+            dist2(&self.p[*a as usize], &pv)
+                .total_cmp(&dist2(&self.p[*b as usize], &pv))
+                .then(a.cmp(b))
+        };
+        // The SEED_NEIGHBOURS nearest, in order (a total order: ties by index).
+        if scratch.len() > SEED_NEIGHBOURS {
+            scratch.select_nth_unstable_by(SEED_NEIGHBOURS, nearer);
+            scratch.truncate(SEED_NEIGHBOURS);
+        }
+        scratch.sort_unstable_by(nearer);
+        for i in 0..scratch.len() {
+            for j in i + 1..scratch.len() {
+                let (mut a, mut b) = (scratch[i], scratch[j]);
+                let ab = cross(
+                    &sub(&self.p[a as usize], &pv),
+                    &sub(&self.p[b as usize], &pv),
+                );
+                if dot(&ab, &self.n[v as usize]) < 0.0 {
+                    std::mem::swap(&mut a, &mut b);
+                }
+                let Some((c, nrm)) =
+                    ball_center(&pv, &self.p[a as usize], &self.p[b as usize], rho)
+                else {
+                    continue;
+                };
+                if !self.normals_agree(&nrm, [v, a, b])
+                    || !self.ball_is_empty(grid, &c, rho, [v, a, b])
+                {
+                    continue;
+                }
+                if self.add_triangle([v, a, b], c) {
+                    self.stats.seeds += 1;
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
+    fn expand(&mut self, grid: &PointGrid, rho: f64) {
+        while let Some(id) = self.queue.pop_front() {
+            if self.edges[id as usize].state == EdgeState::Active {
+                self.pivot(id, grid, rho);
+            }
+        }
+    }
+
+    /// Re-activates boundary edges whose triangle admits an empty ball of radius `rho`.
+    fn reactivate(&mut self, grid: &PointGrid, rho: f64) {
+        for id in 0..self.edges.len() {
+            let e = self.edges[id];
+            if e.state != EdgeState::Boundary {
+                continue;
+            }
+            let (ps, pt, po) = (
+                &self.p[e.s as usize],
+                &self.p[e.t as usize],
+                &self.p[e.o as usize],
+            );
+            if let Some((c, _)) = ball_center(ps, pt, po, rho)
+                && self.ball_is_empty(grid, &c, rho, [e.s, e.t, e.o])
+            {
+                let edge = &mut self.edges[id];
+                edge.center = c;
+                edge.state = EdgeState::Active;
+                self.queue.push_back(id as u32);
+            }
+        }
+    }
+}
+
+/// Reconstructs a triangle mesh from oriented points (`normals` unit length, pointing
+/// out of the surface) with balls of the given radii (m, tried in ascending order).
+/// Returns counter-clockwise triangles as indices into `points`, and counters.
+pub fn ball_pivoting(
+    points: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    radii: &[f64],
+) -> (Vec<[u32; 3]>, BpaStats) {
+    let n = points.len().min(normals.len());
+    let mut radii: Vec<f64> = radii.iter().copied().filter(|r| *r > 0.0).collect();
+    radii.sort_by(f64::total_cmp);
+    let mut bpa = Bpa {
+        p: &points[..n],
+        n: &normals[..n],
+        edges: Vec::new(),
+        directed: FxHashMap::default(),
+        used: vec![false; n],
+        front_deg: vec![0; n],
+        queue: VecDeque::new(),
+        triangles: Vec::new(),
+        stats: BpaStats::default(),
+    };
+    // The grids of all radii are independent: build them in parallel.
+    let grids: Vec<PointGrid> = {
+        use rayon::prelude::*;
+        radii
+            .par_iter()
+            .map(|r| PointGrid::new(&points[..n], 2.0 * r))
+            .collect()
+    };
+    let mut scratch = Vec::new();
+    for (pass, (&rho, grid)) in radii.iter().zip(&grids).enumerate() {
+        if pass > 0 {
+            bpa.reactivate(grid, rho);
+            bpa.expand(grid, rho);
+        }
+        for v in 0..n as u32 {
+            if bpa.used[v as usize] {
+                continue;
+            }
+            if bpa.seed(v, grid, rho, &mut scratch) {
+                bpa.expand(grid, rho);
+            }
+        }
+    }
+    bpa.stats.boundary_edges = bpa
+        .edges
+        .iter()
+        .filter(|e| e.state != EdgeState::Inner)
+        .count();
+    (bpa.triangles, bpa.stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ball_center_is_at_rho_from_the_three_points_on_the_normal_side() {
+        let a = [0.0, 0.0, 0.0];
+        let b = [1.0, 0.0, 0.0];
+        let c = [0.0, 1.0, 0.0];
+        let (center, nrm) = ball_center(&a, &b, &c, 1.0).expect("fits");
+        for p in [a, b, c] {
+            assert!((dist2(&center, &p) - 1.0).abs() < 1e-12);
+        }
+        assert!(center[2] > 0.0 && nrm[2] > 0.0);
+        assert!(
+            ball_center(&a, &b, &c, 0.5).is_none(),
+            "circumradius √2/2 > 0.5"
+        );
+    }
+
+    #[test]
+    fn a_flat_grid_becomes_a_strip_of_triangles() {
+        // 5×5 points, spacing 1, normals up: 32 triangles, all facing up.
+        let pts: Vec<[f64; 3]> = (0..25)
+            .map(|i| {
+                [
+                    f64::from(i % 5),
+                    f64::from(i / 5) + 0.01 * f64::from(i % 3),
+                    0.0,
+                ]
+            })
+            .collect();
+        let nrm = vec![[0.0, 0.0, 1.0]; 25];
+        let (tris, _) = ball_pivoting(&pts, &nrm, &[0.9]);
+        assert_eq!(tris.len(), 32);
+        for t in &tris {
+            let (_, n) = ball_center(
+                &pts[t[0] as usize],
+                &pts[t[1] as usize],
+                &pts[t[2] as usize],
+                0.9,
+            )
+            .expect("every triangle has its ball");
+            assert!(n[2] > 0.0);
+        }
+    }
+}

@@ -1,0 +1,1113 @@
+//! `vinebench replay`: the estimators on a recording instead of a simulation.
+//!
+//! A vinebench recording carries its resolved scenario ([`recording::META_SCENARIO`]):
+//! the estimators are rebuilt from it, the static transforms from `/tf_static`, and the
+//! messages are fed in their recorded arrival order (publish time, ties in file order),
+//! so the estimates equal the live run's bit for bit. A field recording needs a
+//! topic-mapping file ([`ReplayConfig`], `--config`): which topic is the IMU, the GNSS
+//! fix, the tracking camera, ...; the map origin (or the first fix) and estimator
+//! parameters. Topics nobody asked for and message types vinebench does not decode are
+//! skipped and counted, never fatal; a damaged file gives what it still holds.
+//!
+//! Outputs: `estimate_<source>.tum`, `ground_truth.tum` (from `/ground_truth/odom` when
+//! present, which scoring then uses), `report.json`, `report.md`, `trajectories.svg`.
+
+use crate::estimator::{EstimatorSet, StageStats};
+use crate::expect::ExpectationResult;
+use crate::recording::reader::{self, ChannelInfo, RawMessage};
+use crate::recording::ros::{self, TransformStamped};
+use crate::recording::{self, RecordingError, topics};
+use crate::scenario::{LoadedScenario, ScenarioError};
+use crate::scoring::{self, SourceScore, metrics};
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use thiserror::Error;
+use vinebench_msgs::frames::names;
+use vinebench_msgs::geodesy::{Geodetic, LocalEnu};
+use vinebench_msgs::{
+    FixStatus, FrameId, Message, Nanos, PoseSample, StaticTransforms, TimedMessage, Trajectory,
+};
+
+/// A replay that could not be carried out.
+#[derive(Debug, Error)]
+pub enum ReplayError {
+    /// The recording is unreadable.
+    #[error(transparent)]
+    Recording(#[from] RecordingError),
+    /// The topic-mapping file or the recorded scenario is unusable.
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    /// The mapping file or the recording lacks something replay needs (named).
+    #[error("{file}: {problem}")]
+    Input {
+        /// The file at fault (recording or mapping file).
+        file: String,
+        /// What is missing or wrong, and what was expected.
+        problem: String,
+    },
+    /// Writing an output failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ReplayError + '_ {
+    move |source| ReplayError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+/// Which recorded topic feeds which estimator input (`[topics]` of a mapping file).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TopicMap {
+    /// `sensor_msgs/Imu`.
+    pub imu: Option<String>,
+    /// `sensor_msgs/NavSatFix`.
+    pub gnss_fix: Option<String>,
+    /// `geometry_msgs/TwistWithCovarianceStamped` (ENU velocity of the antenna).
+    pub gnss_velocity: Option<String>,
+    /// `nav_msgs/Odometry` of a tracking camera (visual-inertial odometry).
+    pub tracking_odom: Option<String>,
+    /// `nav_msgs/Odometry` of the wheels or tracks.
+    pub wheel_odom: Option<String>,
+    /// `sensor_msgs/Image` and `sensor_msgs/CameraInfo` topics to pass on.
+    #[serde(default)]
+    pub cameras: Vec<String>,
+    /// `tf2_msgs/TFMessage` with the static transforms (default `/tf_static`).
+    pub tf_static: Option<String>,
+    /// `nav_msgs/Odometry` of the body in `world` to score against (default
+    /// `/ground_truth/odom` when the recording has it).
+    pub ground_truth: Option<String>,
+}
+
+/// A topic-mapping file for `vinebench replay --config` (see
+/// `docs/field-topics.example.toml`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReplayConfig {
+    /// Name used in the output folder and report (default: the recording's file stem).
+    pub name: Option<String>,
+    /// The robot's body frame in `/tf_static` (default `base_link`).
+    pub body_frame: Option<String>,
+    /// Recorded topics per estimator input.
+    #[serde(default)]
+    pub topics: TopicMap,
+    /// Frame renames: recorded frame name → the name the transforms use.
+    #[serde(default)]
+    pub frames: BTreeMap<String, String>,
+    /// Geodetic origin of the ENU world frame (default: the first GNSS fix with a
+    /// position).
+    pub origin: Option<Geodetic>,
+    /// `[estimators]` as in a scenario file, over `scenarios/defaults.toml`.
+    pub estimators: Option<toml::Table>,
+    /// `[scoring]` as in a scenario file, over `scenarios/defaults.toml`.
+    pub scoring: Option<toml::Table>,
+    /// Expectations in the scenario language, on the estimate sources.
+    #[serde(default)]
+    pub expect: Vec<String>,
+}
+
+impl ReplayConfig {
+    /// Reads a mapping file; errors name the file, the key and what was expected.
+    pub fn load(path: &Path) -> Result<ReplayConfig, ReplayError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(io_err(path))?;
+        let de = toml::Deserializer::parse(&text).map_err(|e| ReplayError::Input {
+            file: file.clone(),
+            problem: format!("TOML syntax error: {}", e.message().trim()),
+        })?;
+        serde_path_to_error::deserialize(de).map_err(|e| ReplayError::Input {
+            file,
+            problem: format!("`{}`: {}", e.path(), e.inner().message().trim()),
+        })
+    }
+
+    /// The mapping of a vinebench recording: vinebench's own topic names, every camera.
+    fn vinebench() -> ReplayConfig {
+        ReplayConfig {
+            topics: TopicMap {
+                imu: Some("/imu/data".into()),
+                gnss_fix: Some("/gnss/fix".into()),
+                gnss_velocity: Some("/gnss/fix_velocity".into()),
+                tracking_odom: Some("/tracking_camera/odom/sample".into()),
+                wheel_odom: Some("/wheel/odom".into()),
+                ..TopicMap::default()
+            },
+            ..ReplayConfig::default()
+        }
+    }
+}
+
+/// Options of [`replay`].
+#[derive(Clone, Debug, Default)]
+pub struct ReplayOptions {
+    /// Topic-mapping file (required for recordings not made by vinebench).
+    pub config: Option<PathBuf>,
+    /// Output folder (default `<runs_root>/replay-<name>-<UTC stamp>/`).
+    pub out_dir: Option<PathBuf>,
+    /// Parent of default output folders.
+    pub runs_root: PathBuf,
+}
+
+/// One estimate source of a replay.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReplaySource {
+    /// Source name.
+    pub name: String,
+    /// Poses produced.
+    pub poses: usize,
+    /// Metrics against ground truth, when the recording has it.
+    pub score: Option<SourceScore>,
+    /// Messages used by kind.
+    pub used: BTreeMap<String, u64>,
+    /// Messages not used, by reason.
+    pub rejected: BTreeMap<String, u64>,
+    /// Notes.
+    pub notes: Vec<String>,
+}
+
+/// The report of a replay (`report.json`; `report.md` for people).
+#[derive(Clone, Debug, Serialize)]
+pub struct ReplayReport {
+    /// vinebench version that produced it.
+    pub vinebench_version: &'static str,
+    /// The recording.
+    pub recording: String,
+    /// The mapping file, if one was given.
+    pub config: Option<String>,
+    /// Name (scenario name, or the mapping's, or the file stem).
+    pub name: String,
+    /// What the recording lost (a damaged or truncated file), if anything.
+    pub damage: Option<String>,
+    /// Messages fed to the estimators, per recorded topic.
+    pub replayed: BTreeMap<String, u64>,
+    /// Messages not fed, by `topic (type): reason`.
+    pub skipped: BTreeMap<String, u64>,
+    /// Messages that did not decode, by topic, with the first error.
+    pub decode_errors: BTreeMap<String, (u64, String)>,
+    /// Mapped topics the recording does not have.
+    pub missing_topics: Vec<String>,
+    /// Messages that came in the file after one published more than
+    /// [`FILE_REORDER_WINDOW`] later (fed late, in file order).
+    pub late_in_file: u64,
+    /// Messages dropped before the estimators: late beyond the re-ordering window.
+    pub late_dropped: u64,
+    /// Messages dropped as invalid, by `topic field`.
+    pub invalid_dropped: BTreeMap<String, u64>,
+    /// Notes of the estimation stage (unknown frames).
+    pub stage_notes: Vec<String>,
+    /// Ground-truth poses (0 without `/ground_truth/odom`).
+    pub ground_truth_poses: usize,
+    /// Closed-loop metrics of the ground truth itself.
+    pub ground_truth: Option<metrics::LoopMetrics>,
+    /// One entry per estimator.
+    pub sources: Vec<ReplaySource>,
+    /// Expectation outcomes (with ground truth only).
+    pub expectations: Vec<ExpectationResult>,
+    /// True when every expectation holds.
+    pub passed: bool,
+}
+
+/// The outcome of [`replay`].
+#[derive(Debug)]
+pub struct ReplayOutcome {
+    /// The output folder.
+    pub dir: PathBuf,
+    /// The report.
+    pub report: ReplayReport,
+}
+
+/// The role a mapped topic plays.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+enum Role {
+    Imu,
+    GnssFix,
+    GnssVelocity,
+    TrackingOdom,
+    WheelOdom,
+    Camera,
+    TfStatic,
+    GroundTruth,
+}
+
+impl Role {
+    fn expected_types(self) -> &'static [&'static str] {
+        match self {
+            Role::Imu => &["sensor_msgs/Imu"],
+            Role::GnssFix => &["sensor_msgs/NavSatFix"],
+            Role::GnssVelocity => &["geometry_msgs/TwistWithCovarianceStamped"],
+            Role::TrackingOdom | Role::WheelOdom | Role::GroundTruth => &["nav_msgs/Odometry"],
+            Role::Camera => &["sensor_msgs/Image", "sensor_msgs/CameraInfo"],
+            Role::TfStatic => &["tf2_msgs/TFMessage"],
+        }
+    }
+    fn key(self) -> &'static str {
+        match self {
+            Role::Imu => "topics.imu",
+            Role::GnssFix => "topics.gnss_fix",
+            Role::GnssVelocity => "topics.gnss_velocity",
+            Role::TrackingOdom => "topics.tracking_odom",
+            Role::WheelOdom => "topics.wheel_odom",
+            Role::Camera => "topics.cameras",
+            Role::TfStatic => "topics.tf_static",
+            Role::GroundTruth => "topics.ground_truth",
+        }
+    }
+}
+
+/// `sensor_msgs/msg/Imu` and `sensor_msgs/Imu` → `sensor_msgs/Imu`.
+fn short_type(schema_name: &str) -> String {
+    schema_name.replace("/msg/", "/")
+}
+
+// Short-lived (one message at a time); boxing would allocate per message.
+#[allow(clippy::large_enum_variant)]
+enum Decoded {
+    Sensor(Message),
+    Tf(Vec<TransformStamped>),
+    Truth(PoseSample),
+}
+
+/// What the scans collect. The first scan keeps the transforms, the ground truth and
+/// the first GNSS fix, and checks every mapped topic's type; the second decodes the
+/// sensor messages and feeds them on, so memory does not grow with the recording.
+#[derive(Default)]
+struct Collected {
+    /// Transforms and ground truth (first scan).
+    entries: Vec<Decoded>,
+    /// The first GNSS fix with a position (first scan): the default map origin.
+    first_fix: Option<Geodetic>,
+    /// Sensor messages of a mapped topic with a supported type (first scan).
+    sensor_messages: u64,
+    replayed: BTreeMap<String, u64>,
+    skipped: BTreeMap<String, u64>,
+    decode_errors: BTreeMap<String, (u64, String)>,
+    wrong_type: Vec<String>,
+}
+
+fn bump(map: &mut BTreeMap<String, u64>, key: &str) {
+    match map.get_mut(key) {
+        Some(n) => *n += 1,
+        None => {
+            map.insert(key.to_string(), 1);
+        }
+    }
+}
+
+/// Which of the two scans is running.
+#[derive(Copy, Clone, PartialEq, Eq)]
+enum Scan {
+    /// Roles, types, transforms, ground truth, the first fix; counts what is skipped.
+    Index,
+    /// Sensor messages decoded and returned; counts what is replayed or undecodable.
+    Sensors,
+}
+
+/// Looks at one message by its role. [`Scan::Index`] counts unmapped topics and
+/// unsupported types and keeps transforms and ground truth; [`Scan::Sensors`] decodes
+/// sensor messages and returns them.
+fn collect(
+    scan: Scan,
+    roles: &HashMap<String, Role>,
+    camera_topics: &mut HashMap<String, Arc<str>>,
+    out: &mut Collected,
+    ch: &ChannelInfo,
+    m: &RawMessage<'_>,
+) -> Option<Message> {
+    let ty = short_type(&ch.schema_name);
+    let Some(&role) = roles.get(&ch.topic) else {
+        if scan == Scan::Index {
+            let why = if ch.topic.starts_with(topics::ESTIMATE_PREFIX) || ch.topic == topics::TF {
+                "recorded estimate, not replayed"
+            } else {
+                "topic not mapped"
+            };
+            bump(&mut out.skipped, &format!("{} ({ty}): {why}", ch.topic));
+        }
+        return None;
+    };
+    if ch.message_encoding != "cdr" || !role.expected_types().contains(&ty.as_str()) {
+        if scan == Scan::Sensors {
+            return None;
+        }
+        let key = format!(
+            "{} ({ty}, {}): unsupported type for {}",
+            ch.topic,
+            ch.message_encoding,
+            role.key()
+        );
+        if !out.skipped.contains_key(&key) {
+            out.wrong_type.push(format!(
+                "`{}` = {:?} carries {ty} ({}), expected {}",
+                role.key(),
+                ch.topic,
+                ch.message_encoding,
+                role.expected_types().join(" or ")
+            ));
+        }
+        bump(&mut out.skipped, &key);
+        return None;
+    }
+    let is_sensor = !matches!(role, Role::GroundTruth | Role::TfStatic);
+    match scan {
+        Scan::Index if is_sensor => {
+            out.sensor_messages += 1;
+            if role == Role::GnssFix && out.first_fix.is_none() {
+                out.first_fix = ros::decode_nav_sat_fix(m.data)
+                    .ok()
+                    .filter(|f| f.status != FixStatus::NoFix && f.position.is_valid())
+                    .map(|f| f.position);
+            }
+            return None;
+        }
+        Scan::Sensors if !is_sensor => return None,
+        _ => {}
+    }
+    let decoded = match role {
+        Role::Imu => ros::decode_imu(m.data).map(|x| Decoded::Sensor(Message::Imu(x))),
+        Role::GnssFix => {
+            ros::decode_nav_sat_fix(m.data).map(|x| Decoded::Sensor(Message::GnssFix(x)))
+        }
+        Role::GnssVelocity => {
+            ros::decode_gnss_velocity(m.data).map(|x| Decoded::Sensor(Message::GnssVelocity(x)))
+        }
+        Role::TrackingOdom => {
+            ros::decode_odometry(m.data).map(|x| Decoded::Sensor(Message::TrackingOdom(x)))
+        }
+        Role::WheelOdom => {
+            ros::decode_odometry(m.data).map(|x| Decoded::Sensor(Message::WheelOdom(x)))
+        }
+        Role::GroundTruth => ros::decode_odometry(m.data).map(|x| {
+            Decoded::Truth(PoseSample {
+                stamp: x.stamp,
+                world_from_body: x.pose,
+                covariance: None,
+            })
+        }),
+        Role::TfStatic => ros::decode_tf(m.data).map(Decoded::Tf),
+        Role::Camera => {
+            let topic = camera_topics
+                .entry(ch.topic.clone())
+                .or_insert_with(|| Arc::from(ch.topic.as_str()))
+                .clone();
+            if ty == "sensor_msgs/Image" {
+                ros::decode_image(m.data, &topic).map(|x| Decoded::Sensor(Message::Image(x)))
+            } else {
+                ros::decode_camera_info(m.data, &topic)
+                    .map(|x| Decoded::Sensor(Message::CameraInfo(x)))
+            }
+        }
+    };
+    match decoded {
+        Ok(Decoded::Sensor(msg)) => {
+            bump(&mut out.replayed, &ch.topic);
+            Some(msg)
+        }
+        Ok(msg) => {
+            out.entries.push(msg);
+            None
+        }
+        Err(e) => {
+            out.decode_errors
+                .entry(ch.topic.clone())
+                .or_insert_with(|| (0, format!("{ty} #{}: {e}", m.sequence)))
+                .0 += 1;
+            None
+        }
+    }
+}
+
+/// How far (publish time) a message may come after a later-published one in the file
+/// and still be fed in publish-time order. vinebench writes messages in delivery order
+/// (none is late); a robot's recorder writes them as they arrive.
+pub const FILE_REORDER_WINDOW: Nanos = Nanos(1_000_000_000);
+
+/// Orders decoded messages by publish time (ties in file order) within
+/// [`FILE_REORDER_WINDOW`], handing them on as soon as no earlier one can follow.
+struct PublishOrder<T> {
+    heap: std::collections::BinaryHeap<std::cmp::Reverse<(Nanos, u64, Ordered<T>)>>,
+    seq: u64,
+    newest: Option<Nanos>,
+    released: Option<Nanos>,
+    /// Messages older than one already handed on (fed late, in file order).
+    late: u64,
+}
+
+/// A message in [`PublishOrder`], ordered by `(publish, seq)` only.
+struct Ordered<T>(T);
+
+impl<T> PartialEq for Ordered<T> {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+impl<T> Eq for Ordered<T> {}
+impl<T> PartialOrd for Ordered<T> {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl<T> Ord for Ordered<T> {
+    fn cmp(&self, _: &Self) -> std::cmp::Ordering {
+        std::cmp::Ordering::Equal
+    }
+}
+
+impl<T> PublishOrder<T> {
+    fn new() -> PublishOrder<T> {
+        PublishOrder {
+            heap: std::collections::BinaryHeap::new(),
+            seq: 0,
+            newest: None,
+            released: None,
+            late: 0,
+        }
+    }
+
+    /// Adds a message; `feed` gets every message that can no longer be preceded.
+    fn push(&mut self, publish: Nanos, msg: T, feed: &mut impl FnMut(Nanos, T)) {
+        if self.released.is_some_and(|r| publish < r) {
+            self.late += 1;
+            feed(publish, msg);
+            return;
+        }
+        self.heap
+            .push(std::cmp::Reverse((publish, self.seq, Ordered(msg))));
+        self.seq += 1;
+        let newest = self.newest.map_or(publish, |n| n.max(publish));
+        self.newest = Some(newest);
+        while let Some(std::cmp::Reverse((p, _, _))) = self.heap.peek() {
+            if *p + FILE_REORDER_WINDOW > newest {
+                break;
+            }
+            self.pop(feed);
+        }
+    }
+
+    fn pop(&mut self, feed: &mut impl FnMut(Nanos, T)) {
+        if let Some(std::cmp::Reverse((p, _, Ordered(m)))) = self.heap.pop() {
+            self.released = Some(p);
+            feed(p, m);
+        }
+    }
+
+    /// Hands on what is left.
+    fn finish(&mut self, feed: &mut impl FnMut(Nanos, T)) {
+        while !self.heap.is_empty() {
+            self.pop(feed);
+        }
+    }
+}
+
+/// `body_from_<frame>` for every frame connected to `body` in the transforms (edges
+/// used in either direction); direct children of the body keep their transform exactly.
+fn static_transforms(body: &str, tf: &[TransformStamped]) -> StaticTransforms {
+    let mut out = StaticTransforms::new(body);
+    let mut queue: VecDeque<(FrameId, Isometry3<f64>)> =
+        VecDeque::from([(FrameId::new(body), Isometry3::identity())]);
+    let mut seen = vec![FrameId::new(body)];
+    while let Some((frame, body_from_frame)) = queue.pop_front() {
+        for t in tf {
+            let (next, frame_from_next) = if t.parent == frame {
+                (&t.child, t.parent_from_child)
+            } else if t.child == frame {
+                (&t.parent, t.parent_from_child.inverse())
+            } else {
+                continue;
+            };
+            if seen.contains(next) {
+                continue;
+            }
+            seen.push(next.clone());
+            let body_from_next = if frame.as_str() == body {
+                frame_from_next
+            } else {
+                body_from_frame * frame_from_next
+            };
+            out.insert(next.as_str(), body_from_next);
+            queue.push_back((next.clone(), body_from_next));
+        }
+    }
+    out
+}
+
+fn rename(frames: &BTreeMap<String, String>, f: &mut FrameId) {
+    if let Some(to) = frames.get(f.as_str()) {
+        *f = FrameId::new(to);
+    }
+}
+
+fn rename_message(frames: &BTreeMap<String, String>, m: &mut Message) {
+    match m {
+        Message::Imu(x) => rename(frames, &mut x.frame_id),
+        Message::GnssFix(x) => rename(frames, &mut x.frame_id),
+        Message::GnssVelocity(x) => rename(frames, &mut x.frame_id),
+        Message::TrackingOdom(x) | Message::WheelOdom(x) => {
+            rename(frames, &mut x.frame_id);
+            rename(frames, &mut x.child_frame_id);
+        }
+        Message::Image(x) => rename(frames, &mut x.frame_id),
+        Message::CameraInfo(x) => rename(frames, &mut x.frame_id),
+    }
+}
+
+/// The scenario a mapping file implies: its `[estimators]`, `[scoring]`, `expect` and
+/// origin over the defaults.
+fn scenario_of_config(
+    cfg: &ReplayConfig,
+    file: &str,
+    name: &str,
+    origin: Geodetic,
+) -> Result<LoadedScenario, ReplayError> {
+    let mut t = toml::Table::new();
+    t.insert("name".into(), toml::Value::String(name.to_string()));
+    let origin_value = toml::Value::try_from(origin).map_err(|e| ReplayError::Input {
+        file: file.to_string(),
+        problem: format!("origin: {e}"),
+    })?;
+    t.insert("origin".into(), origin_value);
+    if let Some(e) = &cfg.estimators {
+        t.insert("estimators".into(), toml::Value::Table(e.clone()));
+    }
+    if let Some(s) = &cfg.scoring {
+        t.insert("scoring".into(), toml::Value::Table(s.clone()));
+    }
+    t.insert(
+        "expect".into(),
+        toml::Value::Array(
+            cfg.expect
+                .iter()
+                .cloned()
+                .map(toml::Value::String)
+                .collect(),
+        ),
+    );
+    let text = toml::to_string(&t).map_err(|e| ReplayError::Input {
+        file: file.to_string(),
+        problem: e.to_string(),
+    })?;
+    LoadedScenario::from_str(&text, file).map_err(|e| match e {
+        // Locations would point into the generated text: name the key only.
+        ScenarioError::Field { path, message, .. } => ReplayError::Input {
+            file: file.to_string(),
+            problem: format!("`{path}`: {message}"),
+        },
+        e => ReplayError::Scenario(e),
+    })
+}
+
+fn safe_name(s: &str) -> String {
+    let n: String = s
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') {
+                c
+            } else {
+                '-'
+            }
+        })
+        .collect();
+    if n.is_empty() { "recording".into() } else { n }
+}
+
+/// Replays a recording through the estimators and writes the outputs.
+pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, ReplayError> {
+    let file_name = file.display().to_string();
+    let user_cfg = opts.config.as_deref().map(ReplayConfig::load).transpose()?;
+    let cfg_file = opts.config.as_ref().map(|p| p.display().to_string());
+    let cfg = user_cfg.clone().unwrap_or_else(ReplayConfig::vinebench);
+    let t = &cfg.topics;
+    let mut roles: HashMap<String, Role> = HashMap::new();
+    let mapped = [
+        (&t.imu, Role::Imu),
+        (&t.gnss_fix, Role::GnssFix),
+        (&t.gnss_velocity, Role::GnssVelocity),
+        (&t.tracking_odom, Role::TrackingOdom),
+        (&t.wheel_odom, Role::WheelOdom),
+    ];
+    for (topic, role) in mapped {
+        if let Some(topic) = topic {
+            roles.insert(topic.clone(), role);
+        }
+    }
+    for c in &t.cameras {
+        roles.insert(c.clone(), Role::Camera);
+    }
+    let tf_static_topic = t
+        .tf_static
+        .clone()
+        .unwrap_or_else(|| topics::TF_STATIC.to_string());
+    roles.insert(tf_static_topic.clone(), Role::TfStatic);
+    let truth_topic = t
+        .ground_truth
+        .clone()
+        .unwrap_or_else(|| topics::GROUND_TRUTH_ODOM.to_string());
+    roles.insert(truth_topic.clone(), Role::GroundTruth);
+    let all_cameras = user_cfg.is_none();
+
+    let mut got = Collected::default();
+    let mut camera_topics = HashMap::new();
+    let summary = reader::scan_file(file, |ch, m| {
+        // A vinebench recording passes every camera on.
+        if all_cameras
+            && !roles.contains_key(&ch.topic)
+            && matches!(
+                short_type(&ch.schema_name).as_str(),
+                "sensor_msgs/Image" | "sensor_msgs/CameraInfo"
+            )
+        {
+            roles.insert(ch.topic.clone(), Role::Camera);
+        }
+        collect(Scan::Index, &roles, &mut camera_topics, &mut got, ch, m);
+    })?;
+    let damage = summary.damage.as_ref().map(|d| d.to_string());
+    if let Some(e) = got.wrong_type.first() {
+        return Err(ReplayError::Input {
+            file: cfg_file.clone().unwrap_or_else(|| file_name.clone()),
+            problem: format!("{e} (in {file_name})"),
+        });
+    }
+    let present: Vec<&str> = summary
+        .channels
+        .values()
+        .map(|c| c.topic.as_str())
+        .collect();
+    let missing_topics: Vec<String> = mapped
+        .iter()
+        .filter_map(|(topic, role)| {
+            let topic = topic.as_ref()?;
+            (!present.contains(&topic.as_str())).then(|| format!("{} = {topic:?}", role.key()))
+        })
+        .chain(
+            t.cameras
+                .iter()
+                .filter(|c| !present.contains(&c.as_str()))
+                .map(|c| format!("topics.cameras: {c:?}")),
+        )
+        .collect();
+    let topic_list = {
+        let mut p = present.clone();
+        p.sort_unstable();
+        p.dedup();
+        p.join(", ")
+    };
+    if user_cfg.is_some() {
+        for m in &missing_topics {
+            eprintln!("warning: {file_name} has no topic {m} (its topics: {topic_list})");
+        }
+    }
+
+    // The scenario: recorded (vinebench) or from the mapping file.
+    let meta = summary.metadata.get(recording::META_SCENARIO);
+    let stem = file
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| "recording".into());
+    let sc = match (
+        &user_cfg,
+        meta.and_then(|m| m.get(recording::META_KEY_TOML)),
+    ) {
+        (None, Some(toml_text)) => {
+            LoadedScenario::from_str(toml_text, &format!("{file_name} (recorded scenario)"))?
+        }
+        (None, None) => {
+            return Err(ReplayError::Input {
+                file: file_name,
+                problem: format!(
+                    "not a vinebench recording (no `{}` metadata): pass --config with a \
+                     topic-mapping file (see docs/field-topics.example.toml); its topics: \
+                     {topic_list}",
+                    recording::META_SCENARIO
+                ),
+            });
+        }
+        (Some(c), _) => {
+            let cf = cfg_file.clone().unwrap_or_default();
+            let origin = match c.origin {
+                Some(o) => o,
+                None => got.first_fix.ok_or_else(|| ReplayError::Input {
+                    file: cf.clone(),
+                    problem: format!(
+                        "no `origin` and no GNSS fix with a position on {:?} in {file_name}: \
+                         expected [origin] lat_deg, lon_deg, alt_m",
+                        t.gnss_fix.as_deref().unwrap_or("(topics.gnss_fix not set)")
+                    ),
+                })?,
+            };
+            let name = safe_name(c.name.as_deref().unwrap_or(&stem));
+            scenario_of_config(c, &cf, &name, origin)?
+        }
+    };
+
+    // Static transforms.
+    let body = cfg.body_frame.as_deref().unwrap_or(names::BASE_LINK);
+    let mut tf: Vec<TransformStamped> = Vec::new();
+    let mut truth = Trajectory::new();
+    for e in std::mem::take(&mut got.entries) {
+        match e {
+            Decoded::Tf(mut ts) => {
+                for x in &mut ts {
+                    rename(&cfg.frames, &mut x.parent);
+                    rename(&cfg.frames, &mut x.child);
+                }
+                tf.extend(ts);
+            }
+            Decoded::Truth(s) => truth.samples.push(s),
+            Decoded::Sensor(_) => {}
+        }
+    }
+    if tf.is_empty() {
+        return Err(ReplayError::Input {
+            file: file_name,
+            problem: format!(
+                "no static transforms on {tf_static_topic:?}: the estimators need \
+                 body_from_<sensor frame> for every sensor (its topics: {topic_list})"
+            ),
+        });
+    }
+    let static_tf = static_transforms(body, &tf);
+    if static_tf.body_from.is_empty() {
+        return Err(ReplayError::Input {
+            file: cfg_file.unwrap_or(file_name),
+            problem: format!(
+                "body frame `{body}` is not in {tf_static_topic}: expected `body_frame` to name \
+                 one of {:?}",
+                tf.iter().map(|t| t.parent.as_str()).collect::<Vec<_>>()
+            ),
+        });
+    }
+    if got.sensor_messages == 0 {
+        return Err(ReplayError::Input {
+            file: file_name,
+            problem: format!(
+                "no usable sensor message{} (mapped: {}; its topics: {topic_list})",
+                damage
+                    .as_deref()
+                    .map(|d| format!(" ({d})"))
+                    .unwrap_or_default(),
+                roles.keys().cloned().collect::<Vec<_>>().join(", ")
+            ),
+        });
+    }
+    truth.samples.sort_by_key(|s| s.stamp);
+    truth.samples.dedup_by_key(|s| s.stamp);
+
+    let s = &sc.scenario;
+    let mut estimators = EstimatorSet::new(&s.estimators, static_tf, LocalEnu::new(s.origin))
+        .map_err(|e| ReplayError::Input {
+            file: sc.file.clone(),
+            problem: e.to_string(),
+        })?;
+    // Second scan: sensor messages in arrival (publish-time) order, ties in the recorded
+    // (delivery) order, straight into the estimators.
+    let mut order = PublishOrder::new();
+    let mut feed = |arrival: Nanos, msg: Message| estimators.push(&TimedMessage { arrival, msg });
+    reader::scan_file(file, |ch, m| {
+        if let Some(mut msg) = collect(Scan::Sensors, &roles, &mut camera_topics, &mut got, ch, m) {
+            rename_message(&cfg.frames, &mut msg);
+            order.push(m.publish_time, msg, &mut feed);
+        }
+    })?;
+    order.finish(&mut feed);
+    if got.replayed.is_empty() {
+        return Err(ReplayError::Input {
+            file: file_name,
+            problem: format!(
+                "no sensor message decodes ({})",
+                got.decode_errors
+                    .iter()
+                    .map(|(t, (n, e))| format!("{t}: {n} × {e}"))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            ),
+        });
+    }
+    let out = estimators.finish();
+
+    // Outputs.
+    let name = safe_name(&s.name);
+    let dir = match &opts.out_dir {
+        Some(d) => d.clone(),
+        None => opts
+            .runs_root
+            .join(format!("replay-{name}-{}", crate::runner::utc_stamp())),
+    };
+    std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+    for e in &out.estimators {
+        let p = dir.join(format!("estimate_{}.tum", e.name));
+        scoring::tum::write_tum(&p, &e.trajectory).map_err(io_err(&p))?;
+    }
+    let have_truth = !truth.is_empty();
+    if have_truth {
+        let p = dir.join("ground_truth.tum");
+        scoring::tum::write_tum(&p, &truth).map_err(io_err(&p))?;
+    }
+    let fault_windows: Vec<(Nanos, Nanos)> = if user_cfg.is_none() {
+        s.faults
+            .gnss
+            .iter()
+            .map(|f| {
+                (
+                    sc.start + Nanos::from_secs_f64(f.start_s),
+                    sc.start + Nanos::from_secs_f64(f.end_s),
+                )
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let sources: Vec<ReplaySource> = out
+        .estimators
+        .iter()
+        .map(|e| ReplaySource {
+            name: e.name.to_string(),
+            poses: e.trajectory.len(),
+            score: have_truth
+                .then(|| scoring::score_source(&truth, &e.trajectory, &s.scoring, &fault_windows)),
+            used: e.stats.used.clone(),
+            rejected: e.stats.rejected.clone(),
+            notes: e.stats.notes.clone(),
+        })
+        .collect();
+    let robot: BTreeMap<String, f64> = summary
+        .metadata
+        .get(recording::META_RUN)
+        .map(|m| {
+            m.iter()
+                .filter_map(|(k, v)| Some((k.clone(), v.parse::<f64>().ok()?)))
+                .collect()
+        })
+        .unwrap_or_default();
+    let expectations: Vec<ExpectationResult> = if have_truth {
+        sc.expectations
+            .iter()
+            .map(|x| {
+                x.evaluate(|metric, source| {
+                    if source == crate::expect::ROBOT_SOURCE {
+                        return robot.get(metric).copied();
+                    }
+                    sources
+                        .iter()
+                        .find(|r| r.name == source)
+                        .and_then(|r| r.score.as_ref()?.metric(metric))
+                })
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let passed = expectations.iter().all(|x| x.holds);
+    let report = ReplayReport {
+        vinebench_version: env!("CARGO_PKG_VERSION"),
+        recording: file_name,
+        config: cfg_file,
+        name: s.name.clone(),
+        damage,
+        replayed: got.replayed,
+        skipped: got.skipped,
+        decode_errors: got.decode_errors,
+        missing_topics,
+        late_in_file: order.late,
+        late_dropped: out.stage.late_total(),
+        invalid_dropped: invalid_counts(&out.stage),
+        stage_notes: out.stage.notes.clone(),
+        ground_truth_poses: truth.len(),
+        ground_truth: metrics::closed_loop(&truth).ok(),
+        sources,
+        expectations,
+        passed,
+    };
+    write_report(&dir, &report, &truth, &out.estimators)?;
+    Ok(ReplayOutcome { dir, report })
+}
+
+fn invalid_counts(stage: &StageStats) -> BTreeMap<String, u64> {
+    stage
+        .invalid
+        .iter()
+        .flat_map(|(topic, fields)| {
+            fields
+                .iter()
+                .map(move |(field, n)| (format!("{topic} {field}"), *n))
+        })
+        .collect()
+}
+
+fn write_report(
+    dir: &Path,
+    report: &ReplayReport,
+    truth: &Trajectory,
+    estimates: &[crate::estimator::EstimatorOutput],
+) -> Result<(), ReplayError> {
+    let jp = dir.join("report.json");
+    let json =
+        serde_json::to_string_pretty(report).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"));
+    std::fs::write(&jp, json + "\n").map_err(io_err(&jp))?;
+    let mut md = String::new();
+    let _ = writeln!(md, "# vinebench replay: {}\n", report.name);
+    let _ = writeln!(md, "Recording: `{}`", report.recording);
+    if let Some(c) = &report.config {
+        let _ = writeln!(md, "Topic mapping: `{c}`");
+    }
+    if let Some(d) = &report.damage {
+        let _ = writeln!(md, "\n**Damaged recording**: {d}.");
+    }
+    let _ = writeln!(md, "\n## Messages\n\n| topic | replayed |\n|---|---:|");
+    for (t, n) in &report.replayed {
+        let _ = writeln!(md, "| `{t}` | {n} |");
+    }
+    if !report.skipped.is_empty() {
+        let _ = writeln!(md, "\n| skipped | messages |\n|---|---:|");
+        for (t, n) in &report.skipped {
+            let _ = writeln!(md, "| {t} | {n} |");
+        }
+    }
+    for (t, (n, e)) in &report.decode_errors {
+        let _ = writeln!(md, "\n- `{t}`: {n} message(s) did not decode, first: {e}");
+    }
+    for m in &report.missing_topics {
+        let _ = writeln!(md, "- missing topic: {m}");
+    }
+    let _ = writeln!(
+        md,
+        "\n## Estimates\n\n| source | poses | ATE [m] | ATE al. [m] | D [m] |\n|---|---:|---:|---:|---:|"
+    );
+    for s in &report.sources {
+        let m = |k: &str| {
+            s.score
+                .as_ref()
+                .and_then(|x| x.metric(k))
+                .map(|v| format!("{v:.3}"))
+                .unwrap_or_else(|| "–".into())
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} |",
+            s.name,
+            s.poses,
+            m("ate_rmse_m"),
+            m("ate_rmse_aligned_m"),
+            m("d_m")
+        );
+    }
+    if !report.expectations.is_empty() {
+        let _ = writeln!(md, "\n## Expectations\n");
+        for x in &report.expectations {
+            let _ = writeln!(md, "- {x}");
+        }
+    }
+    if !truth.is_empty() {
+        let named: Vec<(&str, &Trajectory)> =
+            estimates.iter().map(|e| (e.name, &e.trajectory)).collect();
+        match scoring::plots::plot_trajectories_svg(dir.join("trajectories.svg"), truth, &named) {
+            Ok(()) => {
+                let _ = writeln!(md, "\n![trajectories](trajectories.svg)");
+            }
+            Err(e) => {
+                let _ = writeln!(md, "\ntrajectories.svg: {e}");
+            }
+        }
+    }
+    let mp = dir.join("report.md");
+    std::fs::write(&mp, md).map_err(io_err(&mp))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Messages out of order by less than the window come out as a stable sort by
+        /// publish time would give them; later ones come out at once and are counted.
+        #[test]
+        fn publish_order_is_a_stable_sort_within_the_window(
+            steps in proptest::collection::vec((0i64..400_000_000, 0i64..1_800_000_000), 1..300),
+        ) {
+            // A clock that advances, each message published up to `lag` before it.
+            let mut clock = 0i64;
+            let msgs: Vec<(Nanos, usize)> = steps
+                .iter()
+                .enumerate()
+                .map(|(i, (advance, lag))| {
+                    clock += advance;
+                    (Nanos(clock - lag), i)
+                })
+                .collect();
+            let mut order = PublishOrder::new();
+            let mut out = Vec::new();
+            let mut feed = |p: Nanos, i: usize| out.push((p, i));
+            for (p, i) in &msgs {
+                order.push(*p, *i, &mut feed);
+            }
+            order.finish(&mut feed);
+            let late = order.late;
+            prop_assert_eq!(out.len(), msgs.len());
+            if msgs.iter().enumerate().all(|(k, (p, _))| {
+                msgs[..k].iter().all(|(q, _)| q.0 - p.0 < FILE_REORDER_WINDOW.0)
+            }) {
+                let mut want = msgs.clone();
+                want.sort_by_key(|(p, _)| *p);
+                prop_assert_eq!(late, 0);
+                prop_assert_eq!(out, want);
+            } else {
+                // Whatever came late, the rest is in publish order.
+                let on_time: Vec<Nanos> = out.iter().map(|(p, _)| *p).collect();
+                let inversions = on_time.windows(2).filter(|w| w[1] < w[0]).count() as u64;
+                prop_assert!(inversions <= late, "{} inversions, {} late", inversions, late);
+            }
+        }
+    }
+
+    fn t(parent: &str, child: &str, x: f64, yaw: f64) -> TransformStamped {
+        TransformStamped {
+            stamp: Nanos(0),
+            parent: FrameId::new(parent),
+            child: FrameId::new(child),
+            parent_from_child: Isometry3::from_parts(
+                Translation3::new(x, 0.0, 0.0),
+                UnitQuaternion::from_euler_angles(0.0, 0.0, yaw),
+            ),
+        }
+    }
+
+    #[test]
+    fn static_transforms_chain_and_invert_edges() {
+        let tf = [
+            t("base_link", "mast", 1.0, 0.5),
+            t("mast", "gnss", 0.2, 0.0),
+            t("imu_link", "base_link", -0.3, 0.0),
+        ];
+        let st = static_transforms("base_link", &tf);
+        assert_eq!(st.body_from("mast"), Some(tf[0].parent_from_child));
+        let want = tf[0].parent_from_child * tf[1].parent_from_child;
+        let got = st.body_from("gnss").unwrap();
+        assert!((got.translation.vector - want.translation.vector).norm() < 1e-12);
+        let imu = st.body_from("imu_link").unwrap();
+        assert!((imu.translation.x - 0.3).abs() < 1e-12);
+        assert!(static_transforms("nowhere", &tf).body_from.is_empty());
+    }
+
+    #[test]
+    fn mapping_errors_name_the_key() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("m.toml");
+        std::fs::write(&p, "[topics]\nimu = 3\n").unwrap();
+        let e = ReplayConfig::load(&p).unwrap_err().to_string();
+        assert!(e.contains("m.toml") && e.contains("topics.imu"), "{e}");
+        std::fs::write(&p, "[topics]\ngps = \"/gps/fix\"\n").unwrap();
+        let e = ReplayConfig::load(&p).unwrap_err().to_string();
+        assert!(e.contains("gps") && e.contains("expected"), "{e}");
+    }
+}
