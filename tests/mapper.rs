@@ -827,50 +827,6 @@ fn mapping_is_identical_for_any_thread_count() {
     assert_eq!(one, two);
 }
 
-/// Meshes a real map (`MAP_PLY=<run>/map/map.ply`), cropped to `MAP_CROP_M` metres of x;
-/// prints counts and time. A tool for tuning, not a check.
-#[test]
-#[ignore]
-fn mesh_a_recorded_map() {
-    let Some(path) = std::env::var_os("MAP_PLY") else {
-        return;
-    };
-    let cloud = ply::read_cloud(std::path::Path::new(&path)).unwrap();
-    let crop: f32 = std::env::var("MAP_CROP_M")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(1.0);
-    let x0 = cloud
-        .positions
-        .iter()
-        .map(|p| p[0])
-        .fold(f32::INFINITY, f32::min);
-    let keep: Vec<usize> = (0..cloud.positions.len())
-        .filter(|&i| cloud.positions[i][0] < x0 + crop)
-        .collect();
-    let pts: Vec<[f64; 3]> = keep
-        .iter()
-        .map(|&i| cloud.positions[i].map(f64::from))
-        .collect();
-    let t0 = std::time::Instant::now();
-    let sub = poisson::poisson_disk(&pts, 0.01);
-    let sp: Vec<[f64; 3]> = sub.iter().map(|&i| pts[i as usize]).collect();
-    let sn: Vec<[f64; 3]> = sub
-        .iter()
-        .map(|&i| cloud.normals[keep[i as usize]].map(f64::from))
-        .collect();
-    let t1 = std::time::Instant::now();
-    let (tris, stats) = bpa::ball_pivoting(&sp, &sn, &[0.01, 0.02, 0.04]);
-    eprintln!(
-        "{} points, {} samples ({:.2} s), {} triangles ({:.2} s), {stats:?}",
-        pts.len(),
-        sp.len(),
-        (t1 - t0).as_secs_f64(),
-        tris.len(),
-        t1.elapsed().as_secs_f64()
-    );
-}
-
 /// A scenario run with `[mapper]` on writes the maps, the mesh, the Gazebo model and the
 /// MJCF, and puts the map scores into `report.json` and `report.md` (the first 3 s of
 /// `scenarios/map-row.toml`).
