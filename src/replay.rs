@@ -12,7 +12,7 @@
 //! Outputs: `estimate_<source>.tum`, `ground_truth.tum` (from `/ground_truth/odom` when
 //! present, which scoring then uses), `report.json`, `report.md`, `trajectories.svg`.
 
-use crate::estimator::{EstimatorSet, StageStats};
+use crate::estimator::EstimatorSet;
 use crate::expect::ExpectationResult;
 use crate::recording::reader::{self, ChannelInfo, RawMessage};
 use crate::recording::ros::{self, TransformStamped};
@@ -919,7 +919,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         missing_topics,
         late_in_file: order.late,
         late_dropped: out.stage.late_total(),
-        invalid_dropped: invalid_counts(&out.stage),
+        invalid_dropped: out.stage.invalid_by_topic_field(),
         stage_notes: out.stage.notes.clone(),
         ground_truth_poses: truth.len(),
         ground_truth: metrics::closed_loop(&truth).ok(),
@@ -929,18 +929,6 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     };
     write_report(&dir, &report, &truth, &out.estimators)?;
     Ok(ReplayOutcome { dir, report })
-}
-
-fn invalid_counts(stage: &StageStats) -> BTreeMap<String, u64> {
-    stage
-        .invalid
-        .iter()
-        .flat_map(|(topic, fields)| {
-            fields
-                .iter()
-                .map(move |(field, n)| (format!("{topic} {field}"), *n))
-        })
-        .collect()
 }
 
 fn write_report(

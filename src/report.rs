@@ -311,16 +311,7 @@ impl Report {
                 route_completed: sim.route_completed,
                 messages: sim.messages.clone(),
                 late_dropped: sim.stage.late_total(),
-                invalid_dropped: sim
-                    .stage
-                    .invalid
-                    .iter()
-                    .flat_map(|(topic, fields)| {
-                        fields
-                            .iter()
-                            .map(move |(field, n)| (format!("{topic} {field}"), *n))
-                    })
-                    .collect(),
+                invalid_dropped: sim.stage.invalid_by_topic_field(),
                 fault_windows_s: s.faults.gnss.iter().map(|f| (f.start_s, f.end_s)).collect(),
             },
             scoring: s.scoring.clone(),

@@ -12,12 +12,9 @@ use vinebench::scenario::LoadedScenario;
 use vinebench_msgs::{ImageEncoding, Message, Nanos, TimedMessage};
 
 /// The camera messages of the first `seconds` of `file`, in production order.
-fn camera_messages(file: &str, seconds: f64) -> Vec<TimedMessage> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("scenarios")
-        .join(file);
-    let sc = LoadedScenario::load(&path).unwrap_or_else(|e| panic!("{e}"));
-    let mut built = setup(&sc).unwrap_or_else(|e| panic!("{e}"));
+/// Every sensor message of the first `seconds` of a scenario, in sampling order.
+fn sensor_messages(sc: &LoadedScenario, seconds: f64) -> Vec<TimedMessage> {
+    let mut built = setup(sc).unwrap_or_else(|e| panic!("{e}"));
     let end = sc.start + Nanos::from_secs_f64(seconds);
     let mut out = Vec::new();
     loop {
@@ -32,6 +29,15 @@ fn camera_messages(file: &str, seconds: f64) -> Vec<TimedMessage> {
             }
         }
     }
+    out
+}
+
+fn camera_messages(file: &str, seconds: f64) -> Vec<TimedMessage> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenarios")
+        .join(file);
+    let sc = LoadedScenario::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    let mut out = sensor_messages(&sc, seconds);
     out.retain(|m| matches!(m.msg, Message::Image(_) | Message::CameraInfo(_)));
     out
 }
@@ -194,22 +200,9 @@ fn an_exposure_blurs_colour_images_and_is_checked_against_the_frame_period() {
     // A moving robot: a 30 ms exposure changes the colour images, not their stamps, and
     // leaves the depth images alone.
     let frames = |sc: &LoadedScenario| {
-        let mut built = setup(sc).unwrap();
         let end = sc.start + Nanos::from_secs_f64(2.5);
-        let mut out = Vec::new();
-        loop {
-            let t = built.sensors.iter().map(|s| s.next_time()).min().unwrap();
-            if t > end {
-                break;
-            }
-            let truth = built.motion.advance_to(t);
-            for s in built.sensors.iter_mut() {
-                if s.next_time() == t {
-                    s.sample(&truth, &mut out);
-                }
-            }
-        }
-        out.into_iter()
+        sensor_messages(sc, 2.5)
+            .into_iter()
             .filter_map(|m| match m.msg {
                 Message::Image(img) if img.stamp > end - Nanos::from_secs_f64(0.2) => Some(img),
                 _ => None,

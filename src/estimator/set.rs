@@ -36,6 +36,17 @@ impl StageStats {
     pub fn invalid_total(&self) -> u64 {
         self.invalid.values().flat_map(|m| m.values()).sum()
     }
+    /// Invalid messages keyed `"<topic> <field>"` (as reports list them).
+    pub fn invalid_by_topic_field(&self) -> BTreeMap<String, u64> {
+        self.invalid
+            .iter()
+            .flat_map(|(topic, fields)| {
+                fields
+                    .iter()
+                    .map(move |(field, n)| (format!("{topic} {field}"), *n))
+            })
+            .collect()
+    }
     fn count_invalid(&mut self, topic: &str, field: &str) -> u64 {
         let c = self
             .invalid
