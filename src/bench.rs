@@ -328,6 +328,89 @@ pub fn shaded_frames_per_second(
     views.len() as f64 / best
 }
 
+/// The SLAM feature front-end ([`crate::slam::bench`]) on a rendered, rectified 752×480
+/// stereo pair (93° HFOV, 12 cm baseline: the rover's ZED 2i-like cameras) at the first
+/// of [`bench_views`]: ORB extraction of one image, stereo matching of the pair, and the
+/// whole pair with the two extractions on two rayon tasks; best of `repeats`.
+pub fn slam_feature_figures(
+    renderer: &vinebench_sim::render::shade::Renderer,
+    repeats: usize,
+) -> Result<Vec<Figure>, BenchError> {
+    use crate::slam::{FrontEndConfig, GrayImage, StereoCamera};
+    use vinebench_sim::render::camera::{BrownConrady, Intrinsics, linear_to_srgb_u8};
+    use vinebench_sim::render::shade::Frame;
+    let intr = Intrinsics::from_hfov(752, 480, 93.0, BrownConrady::NONE);
+    let rays = intr.pixel_rays();
+    let left_pose = bench_views()[0];
+    let cam = StereoCamera {
+        fx: intr.fx,
+        baseline_m: 0.12,
+    };
+    let grey = |pose: &nalgebra::Isometry3<f64>| {
+        let mut f = Frame::new(752, 480);
+        renderer.render(&rays, pose, (1.0 / intr.fx) as f32, 200.0, &mut f);
+        let px = f.linear.chunks_exact(3);
+        let luma = px.map(|c| linear_to_srgb_u8(0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]));
+        GrayImage::from_vec(752, 480, luma.collect())
+            .ok_or_else(|| BenchError::Setup("rendered frame size".into()))
+    };
+    let left = grey(&left_pose)?;
+    let right = grey(&(left_pose * nalgebra::Translation3::new(cam.baseline_m, 0.0, 0.0)))?;
+    let t = crate::slam::bench::time_front_end(
+        &FrontEndConfig::default(),
+        &cam,
+        &left,
+        &right,
+        repeats * 10,
+    )
+    .map_err(|e| BenchError::Setup(e.to_string()))?;
+    let fig = |name, value, unit, target| Figure {
+        name,
+        value,
+        unit,
+        target,
+    };
+    Ok(vec![
+        fig(
+            "slam features: ORB extraction (pyramid, adaptive FAST, SSC, BRIEF) of one 752x480 image, one thread",
+            t.extract_ms_per_image,
+            "ms",
+            None,
+        ),
+        fig(
+            "slam features: stereo matching of one 752x480 pair",
+            t.stereo_ms_per_pair,
+            "ms",
+            None,
+        ),
+        fig(
+            "slam features: one 752x480 stereo pair, both extractions (2 rayon tasks) + stereo + grid",
+            t.pair_ms,
+            "ms",
+            None,
+        ),
+        // 30 Hz tracking of two stereo pairs needs at least 60 pairs/s from the front-end.
+        fig(
+            "slam features: stereo pairs per second through the front-end",
+            1e3 / t.pair_ms,
+            "pairs/s",
+            Some(60.0),
+        ),
+        fig(
+            "slam features: keypoints of the left image",
+            t.keypoints_left as f64,
+            "",
+            None,
+        ),
+        fig(
+            "slam features: left keypoints with a stereo depth (< 40 baselines)",
+            t.stereo_depths as f64,
+            "",
+            None,
+        ),
+    ])
+}
+
 /// The tracked camera scenario (three RGB-D cameras), embedded.
 pub const CAMERA_ROW_TOML: &str = include_str!("../scenarios/camera-row.toml");
 /// The rover camera scenario (two stereo pairs and a tag camera), embedded.
@@ -377,6 +460,7 @@ pub fn render_figures(quick: bool) -> Result<Vec<Figure>, BenchError> {
         unit: "frames/s",
         target: Some(90.0),
     });
+    out.extend(slam_feature_figures(&bvh, repeats)?);
     drop(bvh);
     out.push(Figure {
         name: "camera-row: tracked rig, 3 RGB-D 640x480 at 15 Hz + IMU/GNSS/physics, real-time factor",
@@ -437,5 +521,68 @@ pub fn run_all(quick: bool) -> Result<Vec<Figure>, BenchError> {
             unit: "us",
             target: None,
         },
+    ]
+    .into_iter()
+    .chain(mujoco_figures(repeats)?)
+    .collect())
+}
+
+/// The MuJoCo backend's step on the same robots and terrain (with the `mujoco` feature).
+#[cfg(feature = "mujoco")]
+fn mujoco_figures(repeats: usize) -> Result<Vec<Figure>, BenchError> {
+    Ok(vec![
+        Figure {
+            name: "physics step, tracked-sensorbox (MuJoCo 3.17, 2 belts of 8 spheres, heightfield 0.1 m)",
+            value: mujoco_step_micros("tracked-sensorbox", PHYSICS_BENCH_STEPS, repeats)?,
+            unit: "us",
+            target: None,
+        },
+        Figure {
+            name: "physics step, mecanum-rover (MuJoCo 3.17, 4 wheels of 16 rollers, heightfield 0.1 m)",
+            value: mujoco_step_micros("mecanum-rover", PHYSICS_BENCH_STEPS, repeats)?,
+            unit: "us",
+            target: None,
+        },
     ])
+}
+
+/// Without the `mujoco` feature there is no MuJoCo figure.
+#[cfg(not(feature = "mujoco"))]
+fn mujoco_figures(_repeats: usize) -> Result<Vec<Figure>, BenchError> {
+    Ok(Vec::new())
+}
+
+/// Microseconds per MuJoCo step of the built-in robot `robot`, in the scene of
+/// [`physics_bench_setup`] (best of `repeats` runs of `steps` steps at 1 kHz).
+#[cfg(feature = "mujoco")]
+pub fn mujoco_step_micros(robot: &str, steps: usize, repeats: usize) -> Result<f64, BenchError> {
+    use vinebench_sim::motion::dynamic::standing_pose;
+    use vinebench_sim::params::{PhysicsParams, WorldParams};
+    use vinebench_sim::physics::rapier::{HeightGrid, obstacles_of};
+    use vinebench_sim::physics::{MujocoPhysics, Physics};
+    use vinebench_sim::robot::RobotModel;
+    use vinebench_sim::world::World;
+    let invalid = |e: String| BenchError::Setup(e);
+    let world = World::generate(1, &WorldParams::default()).map_err(|e| invalid(e.to_string()))?;
+    let r = RobotModel::builtin(robot).map_err(|e| invalid(e.to_string()))?;
+    let params = PhysicsParams::default();
+    let (lo, hi) = world.terrain.domain();
+    let grid = HeightGrid::sample(&world.terrain, lo, hi, params.mujoco.heightfield_cell_m);
+    let obstacles = obstacles_of(&world);
+    let start = world.layout.point(world.layout.lane_offset_m(2), 2.0);
+    let yaw = start.1.y.atan2(start.1.x);
+    let pose = standing_pose(&world.terrain, start.0, yaw, r.geometry.ride_height_m);
+    let refs = r.drive.kinematics().joint_speeds(0.8, 0.0, 0.0);
+    let mut best = f64::INFINITY;
+    for _ in 0..repeats.max(1) {
+        let mut p = MujocoPhysics::new(&r, &grid, &obstacles, &params, 1000.0, 9.80, &pose)
+            .map_err(|e| invalid(e.to_string()))?;
+        let t0 = Instant::now();
+        for _ in 0..steps {
+            p.step(black_box(&refs));
+        }
+        black_box(p.body());
+        best = best.min(t0.elapsed().as_secs_f64());
+    }
+    Ok(best / steps as f64 * 1e6)
 }

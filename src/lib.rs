@@ -15,6 +15,7 @@
 //! - [`replay`]: the estimators on a recording (a vinebench run's or a robot's).
 //! - [`mapper`]: geo-referenced RGB-D map, GRVI, elevation, Ball-Pivoting mesh, exports
 //!   (behind the ground-truth firewall); [`mapping`] runs it in a scenario and scores it.
+//! - [`slam`]: stereo visual SLAM, so far its ORB/SSC/stereo front-end (behind the firewall).
 
 pub mod bench;
 pub mod bench_mapper;
@@ -30,3 +31,4 @@ pub mod report;
 pub mod runner;
 pub mod scenario;
 pub mod scoring;
+pub mod slam;

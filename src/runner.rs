@@ -274,7 +274,7 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
     // anything but `path` with no offset for robots that cannot move sideways).
     let tracking = match s.motion.model {
         MotionModelKind::Kinematic => RouteTracking::new(route.clone(), HeadingMode::Path, 0.0),
-        MotionModelKind::Rapier => {
+        MotionModelKind::Rapier | MotionModelKind::Mujoco => {
             RouteTracking::new(route.clone(), s.motion.heading, s.motion.heading_offset_deg)
         }
     };
@@ -324,7 +324,9 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
                 .map_err(|e| sc.param_error(e))?,
             )
         }
+        MotionModelKind::Mujoco => mujoco_motion(s, route, &robot, &world, gravity_mps2, sc)?,
     };
+
     let enu = LocalEnu::new(s.origin);
     let ctx = SensorContext {
         master_seed: s.seed,
@@ -780,4 +782,66 @@ pub(crate) fn utc_stamp() -> String {
         rem % 3600 / 60,
         rem % 60
     )
+}
+
+/// The MuJoCo motion model (`motion.model = "mujoco"`): the route follower of
+/// [`Dynamic`] on [`vinebench_sim::physics::MujocoPhysics`], with the terrain as a
+/// heightfield of `physics.mujoco.heightfield_cell_m`.
+#[cfg(feature = "mujoco")]
+fn mujoco_motion(
+    s: &crate::scenario::Scenario,
+    route: vinebench_sim::route::Route,
+    robot: &RobotModel,
+    world: &World,
+    gravity_mps2: f64,
+    sc: &LoadedScenario,
+) -> Result<Box<dyn MotionModel>, RunError> {
+    use vinebench_sim::physics::MujocoPhysics;
+    vinebench_sim::physics::mjcf::check(&s.physics.mujoco).map_err(|e| sc.param_error(e))?;
+    let (lo, hi) = world.terrain.domain();
+    let grid = HeightGrid::sample(&world.terrain, lo, hi, s.physics.mujoco.heightfield_cell_m);
+    let obstacles = obstacles_of(world);
+    let motion = Dynamic::new(
+        &s.motion,
+        &s.physics,
+        route,
+        robot,
+        &world.terrain,
+        gravity_mps2,
+        sc.start,
+        |pose| {
+            MujocoPhysics::new(
+                robot,
+                &grid,
+                &obstacles,
+                &s.physics,
+                s.motion.step_hz,
+                gravity_mps2,
+                pose,
+            )
+            .map_err(Into::into)
+        },
+    )
+    .map_err(|e| sc.param_error(e))?;
+    Ok(Box::new(motion))
+}
+
+/// Without the `mujoco` feature, `motion.model = "mujoco"` is an error that says how to
+/// get it.
+#[cfg(not(feature = "mujoco"))]
+fn mujoco_motion(
+    _s: &crate::scenario::Scenario,
+    _route: vinebench_sim::route::Route,
+    _robot: &RobotModel,
+    _world: &World,
+    _gravity_mps2: f64,
+    sc: &LoadedScenario,
+) -> Result<Box<dyn MotionModel>, RunError> {
+    Err(sc
+        .field_error(
+            "motion.model",
+            "\"mujoco\" needs a vinebench built with the `mujoco` feature: run \
+             `bash scripts/install-mujoco.sh`, then `cargo run --release --features mujoco -- run ...`",
+        )
+        .into())
 }

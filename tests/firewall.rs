@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use syn::visit::Visit;
 
 /// The algorithm folders behind the firewall (SLAM joins this list).
-const ALGORITHM_DIRS: &[&str] = &["src/estimator", "src/mapper"];
+const ALGORITHM_DIRS: &[&str] = &["src/estimator", "src/mapper", "src/slam"];
 
 /// Path roots an algorithm may name.
 const ALLOWED_ROOTS: &[&str] = &[

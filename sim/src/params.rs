@@ -218,6 +218,8 @@ default_from_section!(RobotParams, "robot");
 pub enum MotionModelKind {
     /// Rigid-body dynamics with rapier3d (`[physics]`).
     Rapier,
+    /// Rigid-body dynamics with MuJoCo 3.17 (`[physics.mujoco]`; cargo feature `mujoco`).
+    Mujoco,
     /// Terrain-following kinematic skid-steer.
     Kinematic,
 }
@@ -297,8 +299,27 @@ pub struct PhysicsParams {
     pub heightfield_cell_m: f64,
     /// The run ends when the route follower has not advanced for this long, s.
     pub stuck_timeout_s: f64,
+    /// `[physics.mujoco]`: the MuJoCo backend's model of the running gear and terrain.
+    pub mujoco: MujocoParams,
 }
 default_from_section!(PhysicsParams, "physics");
+
+/// `[physics.mujoco]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MujocoParams {
+    /// Cell size of the terrain heightfield the tracks and wheels ride on, m.
+    pub heightfield_cell_m: f64,
+    /// Passive rollers (capsules on hinge joints) per mecanum wheel.
+    pub mecanum_rollers: u32,
+    /// Roller radius as a fraction of the wheel radius.
+    pub roller_radius_fraction: f64,
+    /// Road wheels per track (spheres whose hinges are geared to the sprocket).
+    pub road_wheels: u32,
+    /// Contact `solref` time constant, s (stiffness of the soft contacts).
+    pub contact_timeconst_s: f64,
+}
+default_from_section!(MujocoParams, "physics.mujoco");
 
 /// Route kind.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]

@@ -13,14 +13,23 @@
 //!   wheels' contact with the ground is the model of [`contact`]: probe spheres with a
 //!   spring-damper normal force and a shear-displacement friction with relaxation on the
 //!   analytic C² terrain surface, and a speed servo per drive joint.
+//! - `MujocoPhysics` (cargo feature `mujoco`): MuJoCo 3.17 integrates the same URDF robot
+//!   as a multibody with real running gear (passive mecanum rollers, road wheels geared to
+//!   the sprockets) on a terrain heightfield; [`mjcf`] generates its model. It is the
+//!   cross-check of the rapier backend's contact model.
 //!
 //! Velocities follow the symplectic-Euler convention of rapier3d and MuJoCo: the
 //! velocities after a step are the mean velocities over that step
 //! (`x_k = x_{k−1} + dt·v_k`).
 
 pub mod contact;
+pub mod mjcf;
+#[cfg(feature = "mujoco")]
+pub mod mujoco;
 pub mod rapier;
 
+#[cfg(feature = "mujoco")]
+pub use mujoco::MujocoPhysics;
 pub use rapier::{RapierPhysics, Scene};
 
 use crate::robot::MAX_DRIVE_JOINTS;
@@ -111,3 +120,7 @@ pub trait Physics {
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+#[cfg(feature = "mujoco")]
+mod mujoco_tests;

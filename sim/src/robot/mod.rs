@@ -177,6 +177,11 @@ pub struct DriveJoint {
     /// plus the motor rotor's reflected through the gear (`J_rotor·N²`, from the joint's
     /// `<transmission>`), kg·m².
     pub inertia_kgm2: f64,
+    /// The part of [`DriveJoint::inertia_kgm2`] that is the motor's rotor reflected through
+    /// the gear (`J_rotor·N²`; MuJoCo's joint `armature`), kg·m².
+    pub reflected_inertia_kgm2: f64,
+    /// Mass of the child link (`<inertial><mass>`), kg.
+    pub link_mass_kg: f64,
     /// Motor torque limit at the joint (`<limit effort>`), N·m.
     pub max_torque_nm: f64,
     /// Speed limit (`<limit velocity>`), rad/s.

@@ -394,6 +394,8 @@ pub(super) fn parse(text: &str, source: &str) -> Result<RobotModel, RobotError> 
             axis_in_body,
             radius_m,
             inertia_kgm2,
+            reflected_inertia_kgm2: reflected,
+            link_mass_kg: child.inertial.mass.value,
             max_torque_nm,
             max_speed_radps,
             max_accel_radps2,

@@ -1,0 +1,59 @@
+//! Multi-camera stereo visual SLAM (issue #7; Kokas et al., "Multicamera Visual SLAM for
+//! Vineyard Inspection").
+//!
+//! Behind the ground-truth firewall like the estimator and the mapper: it sees image
+//! messages (and, later, IMU and tag-camera messages) only. The module will own the
+//! whole SLAM: features, stereo initialisation, tracking with motion-only bundle
+//! adjustment over every camera of the rig, keyframes and local BA, AprilTag loop closure
+//! with global BA, and the single-camera and bag-of-words baselines. For now it holds the
+//! **feature front-end**, in data-flow order:
+//!
+//! - [`image`]: [`GrayImage`] from an `ImageMsg`, the scale [`Pyramid`], the 7×7 blur.
+//! - [`fast`]: FAST-9 with a score, non-maximum suppression, per-cell adaptive threshold.
+//! - [`ssc`]: Suppression via Square Covering, the strongest evenly spread keypoints.
+//! - [`orb`]: orientation, steered BRIEF, and the [`OrbExtractor`] tying it together.
+//! - [`stereo`]: left/right matching along rectified rows, subpixel, depth below 40 b.
+//! - [`grid`]: keypoints bucketed for projection search.
+//! - [`frontend`]: all of it for one stereo pair ([`StereoFrontEnd`]).
+//! - [`bench`](mod@bench): timing of the front-end for `vinebench bench`.
+//!
+//! ```
+//! use vinebench::slam::{FrontEndConfig, GrayImage, StereoCamera, StereoFrame, StereoFrontEnd};
+//! let img = GrayImage::from_fn(320, 240, |x, y| ((x * 7 + y * 13) % 31 * 8) as u8);
+//! let mut fe = StereoFrontEnd::new(FrontEndConfig::default()).expect("default config");
+//! let mut frame = StereoFrame::default();
+//! let cam = StereoCamera { fx: 300.0, baseline_m: 0.12 };
+//! fe.process(&cam, &img, &img, &mut frame);
+//! assert_eq!(frame.stereo.right_x.len(), frame.left.len());
+//! ```
+
+pub mod bench;
+pub mod fast;
+pub mod frontend;
+pub mod grid;
+pub mod image;
+pub mod orb;
+pub mod ssc;
+pub mod stereo;
+
+pub use frontend::{FrontEndConfig, StereoFrame, StereoFrontEnd};
+pub use grid::{FeatureGrid, GridConfig};
+pub use image::{GrayImage, ImageError, Pyramid};
+pub use orb::{Descriptor, Features, KeyPoint, OrbConfig, OrbExtractor, hamming};
+pub use stereo::{StereoCamera, StereoConfig, StereoMatcher, StereoMatches};
+
+use thiserror::Error;
+
+/// A SLAM setting out of range.
+#[derive(Clone, Debug, Error, PartialEq, Eq)]
+#[error("invalid SLAM configuration: {0}")]
+pub struct ConfigError(pub String);
+
+/// `Ok` when `ok`, else the error `what`.
+fn check(ok: bool, what: &str) -> Result<(), ConfigError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(ConfigError(what.to_string()))
+    }
+}
