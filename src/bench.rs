@@ -128,8 +128,56 @@ pub fn row_loop_real_time_factor(estimators: bool, repeats: usize) -> Result<f64
     Ok(simulated / best)
 }
 
-/// The built-in robot `robot` at rest in lane 2 of the default vineyard (terrain, posts
-/// and trunks), 1 kHz steps, with the joint speeds that drive it forward at 0.8 m/s.
+/// The scene of the physics benchmarks: the default vineyard (seed 1: terrain, posts and
+/// trunks), the built-in robot `robot`, its pose standing in lane 2 along the rows with
+/// `base_link` `sunk_m` below its ride height, and the joint speeds that drive it forward
+/// at 0.8 m/s.
+struct BenchScene {
+    world: vinebench_sim::world::World,
+    robot: vinebench_sim::robot::RobotModel,
+    obstacles: Vec<vinebench_sim::physics::rapier::ObstacleShape>,
+    pose: nalgebra::Isometry3<f64>,
+    refs: [f64; vinebench_sim::robot::MAX_DRIVE_JOINTS],
+}
+
+/// Gravity of the physics benchmarks, m/s².
+const BENCH_GRAVITY_MPS2: f64 = 9.80;
+
+fn bench_scene(
+    robot: &str,
+    sunk_m: impl Fn(&vinebench_sim::robot::RobotModel) -> f64,
+) -> Result<BenchScene, BenchError> {
+    use vinebench_sim::motion::dynamic::standing_pose;
+    use vinebench_sim::params::WorldParams;
+    use vinebench_sim::physics::rapier::obstacles_of;
+    use vinebench_sim::robot::RobotModel;
+    use vinebench_sim::world::World;
+    let invalid = |e: String| BenchError::Setup(e);
+    let world = World::generate(1, &WorldParams::default()).map_err(|e| invalid(e.to_string()))?;
+    let r = RobotModel::builtin(robot).map_err(|e| invalid(e.to_string()))?;
+    let obstacles = obstacles_of(&world);
+    // In lane 2, heading along the rows.
+    let start = world.layout.point(world.layout.lane_offset_m(2), 2.0);
+    let yaw = start.1.y.atan2(start.1.x);
+    let pose = standing_pose(
+        &world.terrain,
+        start.0,
+        yaw,
+        r.geometry.ride_height_m - sunk_m(&r),
+    );
+    let refs = r.drive.kinematics().joint_speeds(0.8, 0.0, 0.0);
+    Ok(BenchScene {
+        world,
+        robot: r,
+        obstacles,
+        pose,
+        refs,
+    })
+}
+
+/// The built-in robot `robot` at rest (at its static sinkage) in lane 2 of the default
+/// vineyard (terrain, posts and trunks), 1 kHz rapier steps, with the joint speeds that
+/// drive it forward at 0.8 m/s.
 pub fn physics_bench_setup(
     robot: &str,
 ) -> Result<
@@ -139,48 +187,72 @@ pub fn physics_bench_setup(
     ),
     BenchError,
 > {
-    use vinebench_sim::motion::dynamic::{standing_pose, static_sinkage_m};
-    use vinebench_sim::params::{PhysicsParams, WorldParams};
-    use vinebench_sim::physics::rapier::{HeightGrid, obstacles_of};
+    use vinebench_sim::motion::dynamic::static_sinkage_m;
+    use vinebench_sim::params::PhysicsParams;
+    use vinebench_sim::physics::rapier::HeightGrid;
     use vinebench_sim::physics::{RapierPhysics, Scene};
-    use vinebench_sim::robot::RobotModel;
-    use vinebench_sim::world::World;
-    let invalid = |e: String| BenchError::Setup(e);
-    let world = World::generate(1, &WorldParams::default()).map_err(|e| invalid(e.to_string()))?;
-    let r = RobotModel::builtin(robot).map_err(|e| invalid(e.to_string()))?;
+    let b = bench_scene(robot, |r| static_sinkage_m(r, BENCH_GRAVITY_MPS2))?;
     let params = PhysicsParams::default();
-    let (lo, hi) = world.terrain.domain();
-    let grid = HeightGrid::sample(&world.terrain, lo, hi, params.heightfield_cell_m);
-    let obstacles = obstacles_of(&world);
-    // In lane 2, heading along the rows.
-    let start = world.layout.point(world.layout.lane_offset_m(2), 2.0);
-    let yaw = start.1.y.atan2(start.1.x);
-    let gravity = 9.80;
-    let pose = standing_pose(
-        &world.terrain,
-        start.0,
-        yaw,
-        r.geometry.ride_height_m - static_sinkage_m(&r, gravity),
-    );
-    let refs = r.drive.kinematics().joint_speeds(0.8, 0.0, 0.0);
+    let (lo, hi) = b.world.terrain.domain();
+    let grid = HeightGrid::sample(&b.world.terrain, lo, hi, params.heightfield_cell_m);
     let scene = Scene {
-        surface: world.terrain.clone(),
-        obstacles: &obstacles,
+        surface: b.world.terrain.clone(),
+        obstacles: &b.obstacles,
         ground: Some(&grid),
     };
-    let p = RapierPhysics::new(&r, scene, &params, 1000.0, gravity, &pose)
-        .map_err(|e| invalid(e.to_string()))?;
-    Ok((p, refs))
+    let p = RapierPhysics::new(
+        &b.robot,
+        scene,
+        &params,
+        1000.0,
+        BENCH_GRAVITY_MPS2,
+        &b.pose,
+    )
+    .map_err(|e| BenchError::Setup(e.to_string()))?;
+    Ok((p, b.refs))
 }
 
-/// Microseconds per physics step of the built-in robot `robot` driving forward on the
-/// default vineyard's terrain among its posts and trunks (best of `repeats` runs of
-/// `steps` steps at 1 kHz, after [`physics_bench_setup`]).
-pub fn physics_step_micros(robot: &str, steps: usize, repeats: usize) -> Result<f64, BenchError> {
-    use vinebench_sim::physics::Physics;
+/// The same scene on MuJoCo (heightfield of `physics.mujoco.heightfield_cell_m`).
+#[cfg(feature = "mujoco")]
+pub fn mujoco_bench_setup(
+    robot: &str,
+) -> Result<
+    (
+        vinebench_sim::physics::MujocoPhysics,
+        [f64; vinebench_sim::robot::MAX_DRIVE_JOINTS],
+    ),
+    BenchError,
+> {
+    use vinebench_sim::params::PhysicsParams;
+    use vinebench_sim::physics::MujocoPhysics;
+    use vinebench_sim::physics::rapier::HeightGrid;
+    let b = bench_scene(robot, |_| 0.0)?;
+    let params = PhysicsParams::default();
+    let (lo, hi) = b.world.terrain.domain();
+    let grid = HeightGrid::sample(&b.world.terrain, lo, hi, params.mujoco.heightfield_cell_m);
+    let p = MujocoPhysics::new(
+        &b.robot,
+        &grid,
+        &b.obstacles,
+        &params,
+        1000.0,
+        BENCH_GRAVITY_MPS2,
+        &b.pose,
+    )
+    .map_err(|e| BenchError::Setup(e.to_string()))?;
+    Ok((p, b.refs))
+}
+
+/// Microseconds per physics step of a backend that `setup` builds (best of `repeats`
+/// runs of `steps` steps; setting up is not timed).
+pub fn physics_step_micros_of<P: vinebench_sim::physics::Physics>(
+    setup: impl Fn() -> Result<(P, [f64; vinebench_sim::robot::MAX_DRIVE_JOINTS]), BenchError>,
+    steps: usize,
+    repeats: usize,
+) -> Result<f64, BenchError> {
     let mut best = f64::INFINITY;
     for _ in 0..repeats.max(1) {
-        let (mut p, refs) = physics_bench_setup(robot)?;
+        let (mut p, refs) = setup()?;
         let t0 = Instant::now();
         for _ in 0..steps {
             p.step(black_box(&refs));
@@ -189,6 +261,13 @@ pub fn physics_step_micros(robot: &str, steps: usize, repeats: usize) -> Result<
         best = best.min(t0.elapsed().as_secs_f64());
     }
     Ok(best / steps as f64 * 1e6)
+}
+
+/// Microseconds per rapier step of the built-in robot `robot` driving forward on the
+/// default vineyard's terrain among its posts and trunks (best of `repeats` runs of
+/// `steps` steps at 1 kHz, after [`physics_bench_setup`]).
+pub fn physics_step_micros(robot: &str, steps: usize, repeats: usize) -> Result<f64, BenchError> {
+    physics_step_micros_of(|| physics_bench_setup(robot), steps, repeats)
 }
 
 /// Real-time factor of a camera scenario's first `seconds` simulated seconds
@@ -533,13 +612,21 @@ fn mujoco_figures(repeats: usize) -> Result<Vec<Figure>, BenchError> {
     Ok(vec![
         Figure {
             name: "physics step, tracked-sensorbox (MuJoCo 3.17, 2 belts of 8 spheres, heightfield 0.1 m)",
-            value: mujoco_step_micros("tracked-sensorbox", PHYSICS_BENCH_STEPS, repeats)?,
+            value: physics_step_micros_of(
+                || mujoco_bench_setup("tracked-sensorbox"),
+                PHYSICS_BENCH_STEPS,
+                repeats,
+            )?,
             unit: "us",
             target: None,
         },
         Figure {
             name: "physics step, mecanum-rover (MuJoCo 3.17, 4 wheels of 16 rollers, heightfield 0.1 m)",
-            value: mujoco_step_micros("mecanum-rover", PHYSICS_BENCH_STEPS, repeats)?,
+            value: physics_step_micros_of(
+                || mujoco_bench_setup("mecanum-rover"),
+                PHYSICS_BENCH_STEPS,
+                repeats,
+            )?,
             unit: "us",
             target: None,
         },
@@ -550,39 +637,4 @@ fn mujoco_figures(repeats: usize) -> Result<Vec<Figure>, BenchError> {
 #[cfg(not(feature = "mujoco"))]
 fn mujoco_figures(_repeats: usize) -> Result<Vec<Figure>, BenchError> {
     Ok(Vec::new())
-}
-
-/// Microseconds per MuJoCo step of the built-in robot `robot`, in the scene of
-/// [`physics_bench_setup`] (best of `repeats` runs of `steps` steps at 1 kHz).
-#[cfg(feature = "mujoco")]
-pub fn mujoco_step_micros(robot: &str, steps: usize, repeats: usize) -> Result<f64, BenchError> {
-    use vinebench_sim::motion::dynamic::standing_pose;
-    use vinebench_sim::params::{PhysicsParams, WorldParams};
-    use vinebench_sim::physics::rapier::{HeightGrid, obstacles_of};
-    use vinebench_sim::physics::{MujocoPhysics, Physics};
-    use vinebench_sim::robot::RobotModel;
-    use vinebench_sim::world::World;
-    let invalid = |e: String| BenchError::Setup(e);
-    let world = World::generate(1, &WorldParams::default()).map_err(|e| invalid(e.to_string()))?;
-    let r = RobotModel::builtin(robot).map_err(|e| invalid(e.to_string()))?;
-    let params = PhysicsParams::default();
-    let (lo, hi) = world.terrain.domain();
-    let grid = HeightGrid::sample(&world.terrain, lo, hi, params.mujoco.heightfield_cell_m);
-    let obstacles = obstacles_of(&world);
-    let start = world.layout.point(world.layout.lane_offset_m(2), 2.0);
-    let yaw = start.1.y.atan2(start.1.x);
-    let pose = standing_pose(&world.terrain, start.0, yaw, r.geometry.ride_height_m);
-    let refs = r.drive.kinematics().joint_speeds(0.8, 0.0, 0.0);
-    let mut best = f64::INFINITY;
-    for _ in 0..repeats.max(1) {
-        let mut p = MujocoPhysics::new(&r, &grid, &obstacles, &params, 1000.0, 9.80, &pose)
-            .map_err(|e| invalid(e.to_string()))?;
-        let t0 = Instant::now();
-        for _ in 0..steps {
-            p.step(black_box(&refs));
-        }
-        black_box(p.body());
-        best = best.min(t0.elapsed().as_secs_f64());
-    }
-    Ok(best / steps as f64 * 1e6)
 }

@@ -314,7 +314,7 @@ pub struct MujocoParams {
     pub mecanum_rollers: u32,
     /// Roller radius as a fraction of the wheel radius.
     pub roller_radius_fraction: f64,
-    /// Road wheels per track (spheres whose hinges are geared to the sprocket).
+    /// Spheres per track along its ground run (a conveyor belt driven by the sprocket).
     pub road_wheels: u32,
     /// Contact `solref` time constant, s (stiffness of the soft contacts).
     pub contact_timeconst_s: f64,

@@ -64,6 +64,7 @@
 //! integrated exactly over the step (`σ` may be short).
 
 use super::BodyState;
+use crate::robot::DriveJoint;
 use crate::world::Surface;
 use nalgebra::{Vector2, Vector3};
 
@@ -386,6 +387,19 @@ impl Motor {
             speed_radps: 0.0,
             torque_nm: 0.0,
         }
+    }
+
+    /// The servo of drive joint `j` carrying `share_kg` of the robot's mass at its rolling
+    /// radius, with a bandwidth of `bandwidth_hz`.
+    pub fn for_joint(j: &DriveJoint, share_kg: f64, bandwidth_hz: f64) -> Motor {
+        Motor::new(
+            j.inertia_kgm2,
+            j.max_torque_nm,
+            j.damping_nms,
+            j.friction_nm,
+            j.inertia_kgm2 + share_kg * j.radius_m * j.radius_m,
+            bandwidth_hz,
+        )
     }
 
     /// One step of `dt` towards `speed_ref_radps` with the ground's torque

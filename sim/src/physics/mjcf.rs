@@ -24,12 +24,13 @@
 //!
 //! Collision filtering: static geoms have `contype = 0`, robot geoms `conaffinity = 0`, so
 //! only robot-versus-world pairs are tested; the bits pick which: [`GROUND_BIT`] (terrain)
-//! and [`OBSTACLE_BIT`] (posts, trunks, boxes). Rollers and road wheels touch the terrain
+//! and [`OBSTACLE_BIT`] (posts, trunks, boxes). Rollers and belt spheres touch the terrain
 //! only, running-gear URDF shapes obstacles only, the chassis both (bottoming out).
 //!
 //! This module is pure text generation (no MuJoCo needed), so its output is tested in
 //! every build; [`super::mujoco`] compiles it.
 
+use super::contact::Motor;
 use super::rapier::{HeightGrid, ObstacleShape};
 use crate::params::MujocoParams;
 use crate::robot::{Drive, DriveJoint, RobotModel, Shape};
@@ -88,10 +89,7 @@ pub struct Mjcf {
 pub struct DriveTrain {
     /// A mecanum wheel: one hinge joint with a velocity actuator of the same name. A track:
     /// its belt geoms (conveyor spheres fixed to the chassis).
-    pub members: Vec<(String, f64)>,
-    /// Proportional gain of the drive joint's speed servo, N·m·s/rad (the actuator's `kv`
-    /// for a wheel).
-    pub kp: f64,
+    pub members: Vec<String>,
 }
 
 /// Why a model could not be generated.
@@ -149,13 +147,6 @@ struct Part {
     mass_kg: f64,
     centre: Vector3<f64>,
     inertia: Matrix3<f64>,
-}
-
-/// The servo's proportional gain of a drive joint: the load inertia (drive train plus its
-/// share of the robot's mass at the rolling radius) times the bandwidth, as
-/// [`super::contact::Motor::new`] sets it.
-pub fn servo_kp(j: &DriveJoint, share_kg: f64, bandwidth_hz: f64) -> f64 {
-    (j.inertia_kgm2 + share_kg * j.radius_m * j.radius_m) * std::f64::consts::TAU * bandwidth_hz
 }
 
 /// Checks `[physics.mujoco]` (errors carry the key path).
@@ -334,15 +325,11 @@ pub fn generate(robot: &RobotModel, scene: &SceneSpec<'_>) -> Result<Mjcf, MjcfE
     // The robot.
     let mut parts: Vec<Part> = Vec::new();
     let mut bodies = String::new();
-    let mut drives: Vec<Vec<(String, f64)>> = Vec::new();
+    let mut drives: Vec<Vec<String>> = Vec::new();
     let mut belts = String::new();
     let mut body_masses_kg = Vec::new();
     let joints = robot.drive.joints();
     let share = robot.inertia.mass_kg / joints.len() as f64;
-    let servo_kp: Vec<f64> = joints
-        .iter()
-        .map(|j| servo_kp(j, share, scene.motor_bandwidth_hz))
-        .collect();
     let ground_geom = |name: &str, mu: f64| {
         format!(
             "contype=\"{GROUND_BIT}\" conaffinity=\"0\" condim=\"3\" priority=\"1\" friction=\"{} 0.005 0.0001\" solref=\"{solref}\" name=\"{name}\"",
@@ -405,7 +392,7 @@ pub fn generate(robot: &RobotModel, scene: &SceneSpec<'_>) -> Result<Mjcf, MjcfE
                     &mut parts,
                     &mut body_masses_kg,
                 ));
-                drives.push(vec![(j.name.clone(), 1.0)]);
+                drives.push(vec![j.name.clone()]);
             }
         }
         Drive::Tracked(t) => {
@@ -429,6 +416,9 @@ pub fn generate(robot: &RobotModel, scene: &SceneSpec<'_>) -> Result<Mjcf, MjcfE
                     let along = -run / 2.0 + run * i as f64 / (n - 1) as f64;
                     let pos = centre + fwd * along;
                     let name = format!("{}_belt_{i}", track.link);
+                    // Nonzero at compile time, so that the model's `flg_surfacevel` (some
+                    // geom has a surface velocity) is set; the backend rewrites the values
+                    // every step.
                     let _ = writeln!(
                         belts,
                         "      <geom type=\"sphere\" size=\"{rr}\" pos=\"{}\" quat=\"{}\" mass=\"0\" surfacevel=\"1e-12 0 0 0 0 0\" {}/>",
@@ -436,7 +426,7 @@ pub fn generate(robot: &RobotModel, scene: &SceneSpec<'_>) -> Result<Mjcf, MjcfE
                         quat(&track.body_from_track.rotation),
                         ground_geom(&name, mu),
                     );
-                    members.push((name, 1.0));
+                    members.push(name);
                 }
                 drives.push(members);
             }
@@ -520,8 +510,9 @@ pub fn generate(robot: &RobotModel, scene: &SceneSpec<'_>) -> Result<Mjcf, MjcfE
     let _ = writeln!(x, "  </worldbody>");
     let _ = writeln!(x, "  <actuator>");
     if let Drive::Mecanum(_) = &robot.drive {
-        for (j, kp) in joints.iter().zip(&servo_kp) {
+        for j in &joints {
             // The servo's proportional part is the actuator's (implicit) gain.
+            let kp = Motor::for_joint(j, share, scene.motor_bandwidth_hz).kp;
             let _ = writeln!(
                 x,
                 "    <velocity name=\"{}\" joint=\"{}\" kv=\"{kp}\" forcerange=\"{} {}\"/>",
@@ -546,8 +537,7 @@ pub fn generate(robot: &RobotModel, scene: &SceneSpec<'_>) -> Result<Mjcf, MjcfE
         },
         drives: drives
             .into_iter()
-            .zip(servo_kp)
-            .map(|(members, kp)| DriveTrain { members, kp })
+            .map(|members| DriveTrain { members })
             .collect(),
         body_masses_kg,
     })

@@ -14,9 +14,9 @@
 //!   spring-damper normal force and a shear-displacement friction with relaxation on the
 //!   analytic C² terrain surface, and a speed servo per drive joint.
 //! - `MujocoPhysics` (cargo feature `mujoco`): MuJoCo 3.17 integrates the same URDF robot
-//!   as a multibody with real running gear (passive mecanum rollers, road wheels geared to
-//!   the sprockets) on a terrain heightfield; [`mjcf`] generates its model. It is the
-//!   cross-check of the rapier backend's contact model.
+//!   as a multibody with real running gear (passive mecanum rollers, conveyor-belt tracks
+//!   driven by the sprockets) on a terrain heightfield; [`mjcf`] generates its model. It
+//!   is the cross-check of the rapier backend's contact model.
 //!
 //! Velocities follow the symplectic-Euler convention of rapier3d and MuJoCo: the
 //! velocities after a step are the mean velocities over that step

@@ -185,7 +185,6 @@ impl MujocoPhysics {
                 .name_to_id(kind, name)
                 .ok_or_else(|| model_error(format!("the compiled model has no `{name}`")))
         };
-        let w = std::f64::consts::TAU * params.motor_bandwidth_hz;
         let share = robot.inertia.mass_kg / robot.drive.joints().len() as f64;
         let mut drives = Vec::new();
         let tracks = match &robot.drive {
@@ -196,12 +195,13 @@ impl MujocoPhysics {
             match tracks.get(i) {
                 None => {
                     let jid = id(MjtObjBase::mjOBJ_JOINT, &j.name)?;
+                    let servo = Motor::for_joint(j, share, params.motor_bandwidth_hz);
                     drives.push(Drive::Wheel(Wheel {
                         qpos_adr: model.jnt_qposadr()[jid] as usize,
                         dof_adr: model.jnt_dofadr()[jid] as usize,
                         actuator: id(MjtObjBase::mjOBJ_ACTUATOR, &j.name)?,
-                        kp: train.kp,
-                        ki: train.kp * w / 4.0,
+                        kp: servo.kp,
+                        ki: servo.ki,
                         max_torque_nm: j.max_torque_nm,
                         integral_rad: 0.0,
                         inertia_kgm2: j.inertia_kgm2,
@@ -211,17 +211,10 @@ impl MujocoPhysics {
                     let geoms = train
                         .members
                         .iter()
-                        .map(|(name, _)| id(MjtObjBase::mjOBJ_GEOM, name))
+                        .map(|name| id(MjtObjBase::mjOBJ_GEOM, name))
                         .collect::<Result<Vec<_>, _>>()?;
                     drives.push(Drive::Belt(Belt {
-                        motor: Motor::new(
-                            j.inertia_kgm2,
-                            j.max_torque_nm,
-                            j.damping_nms,
-                            j.friction_nm,
-                            j.inertia_kgm2 + share * j.radius_m * j.radius_m,
-                            params.motor_bandwidth_hz,
-                        ),
+                        motor: Motor::for_joint(j, share, params.motor_bandwidth_hz),
                         geoms,
                         radius_m: j.radius_m,
                         forward_in_body: track.body_from_track.rotation * Vector3::x(),

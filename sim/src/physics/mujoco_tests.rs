@@ -3,6 +3,7 @@
 
 use super::mujoco::MujocoPhysics;
 use super::rapier::{HeightGrid, ObstacleShape, RapierPhysics};
+use super::tests::{G, ROVER, TRACKED, plane, robot, yaw_of};
 use super::{CollisionEvent, Obstacle, Physics, Scene};
 use crate::control::TwistCommand;
 use crate::motion::dynamic::{DriveController, standing_pose, static_sinkage_m};
@@ -10,21 +11,6 @@ use crate::params::PhysicsParams;
 use crate::robot::{MAX_DRIVE_JOINTS, RobotModel};
 use crate::world::{PlaneSurface, Surface};
 use nalgebra::{Isometry3, Vector2, Vector3};
-
-const G: f64 = 9.80;
-const TRACKED: &str = "tracked-sensorbox";
-const ROVER: &str = "mecanum-rover";
-
-fn robot(name: &str) -> RobotModel {
-    RobotModel::builtin(name).unwrap()
-}
-
-fn plane(slope_x_deg: f64) -> PlaneSurface {
-    PlaneSurface {
-        z0_m: 0.0,
-        gradient: Vector2::new(slope_x_deg.to_radians().tan(), 0.0),
-    }
-}
 
 fn start_pose<S: Surface>(r: &RobotModel, surface: &S, yaw: f64) -> Isometry3<f64> {
     standing_pose(
@@ -90,11 +76,6 @@ fn rapier_with<S: Surface + Clone>(
         ground: None,
     };
     RapierPhysics::new(&r, scene, params, 1000.0, G, &start_pose(&r, surface, yaw)).unwrap()
-}
-
-fn yaw_of(p: &Isometry3<f64>) -> f64 {
-    let x = p.rotation * Vector3::x();
-    x.y.atan2(x.x)
 }
 
 /// The pose after a manoeuvre and what it took.

@@ -499,14 +499,7 @@ impl<S: Surface> RapierPhysics<S> {
             .enumerate()
             .map(|(i, j)| {
                 radii[i] = j.radius_m;
-                Motor::new(
-                    j.inertia_kgm2,
-                    j.max_torque_nm,
-                    j.damping_nms,
-                    j.friction_nm,
-                    j.inertia_kgm2 + share * j.radius_m * j.radius_m,
-                    params.motor_bandwidth_hz,
-                )
+                Motor::for_joint(j, share, params.motor_bandwidth_hz)
             })
             .collect();
         Ok(RapierPhysics {

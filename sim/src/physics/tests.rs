@@ -9,15 +9,15 @@ use crate::robot::{MAX_DRIVE_JOINTS, RobotModel};
 use crate::world::{PlaneSurface, Surface, SurfacePoint};
 use nalgebra::{Isometry3, Matrix2, Vector2, Vector3};
 
-const G: f64 = 9.80;
-const TRACKED: &str = "tracked-sensorbox";
-const ROVER: &str = "mecanum-rover";
+pub(super) const G: f64 = 9.80;
+pub(super) const TRACKED: &str = "tracked-sensorbox";
+pub(super) const ROVER: &str = "mecanum-rover";
 
-fn robot(name: &str) -> RobotModel {
+pub(super) fn robot(name: &str) -> RobotModel {
     RobotModel::builtin(name).unwrap()
 }
 
-fn plane(slope_x_deg: f64) -> PlaneSurface {
+pub(super) fn plane(slope_x_deg: f64) -> PlaneSurface {
     PlaneSurface {
         z0_m: 0.0,
         gradient: Vector2::new(slope_x_deg.to_radians().tan(), 0.0),
@@ -62,7 +62,7 @@ fn run<S: Surface>(p: &mut RapierPhysics<S>, refs: [f64; MAX_DRIVE_JOINTS], seco
     }
 }
 
-fn yaw_of(p: &Isometry3<f64>) -> f64 {
+pub(super) fn yaw_of(p: &Isometry3<f64>) -> f64 {
     let x = p.rotation * Vector3::x();
     x.y.atan2(x.x)
 }
