@@ -7,6 +7,7 @@
 #![allow(clippy::unwrap_used)]
 
 use proptest::prelude::*;
+use vinebench::slam::bench::value_noise;
 use vinebench::slam::fast::{self, FastConfig, FastDetector};
 use vinebench::slam::image::{BlurScratch, gaussian_blur7};
 use vinebench::slam::orb::{EDGE, KeyPoint, describe, ic_angle};
@@ -20,31 +21,9 @@ use vinebench::slam::{
 const FX: f64 = 356.81;
 const BASELINE_M: f64 = 0.12;
 
-/// Smooth value noise in [0, 1): hashed lattice of spacing `cell`, smoothstep-blended.
-fn noise(x: f64, y: f64, cell: f64, seed: u64) -> f64 {
-    let h = |ix: i64, iy: i64| {
-        let mut v = seed
-            .wrapping_mul(0x2545_F491_4F6C_DD1D)
-            .wrapping_add((ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15))
-            .wrapping_add((iy as u64).wrapping_mul(0xD6E8_FEB8_6659_FD93));
-        v ^= v >> 32;
-        v = v.wrapping_mul(0xD6E8_FEB8_6659_FD93);
-        v ^= v >> 32;
-        (v >> 11) as f64 / (1u64 << 53) as f64
-    };
-    let (u, v) = (x / cell, y / cell);
-    let (fu, fv) = (u.floor(), v.floor());
-    let s = |t: f64| t * t * (3.0 - 2.0 * t);
-    let (a, b) = (s(u - fu), s(v - fv));
-    let (i, j) = (fu as i64, fv as i64);
-    let top = h(i, j) * (1.0 - a) + h(i + 1, j) * a;
-    let bottom = h(i, j + 1) * (1.0 - a) + h(i + 1, j + 1) * a;
-    top * (1.0 - b) + bottom * b
-}
-
 /// A textured surface's intensity at a real position.
 fn texture(x: f64, y: f64, seed: u64) -> u8 {
-    let t = 0.6 * noise(x, y, 6.0, seed) + 0.4 * noise(x, y, 2.7, seed + 1);
+    let t = 0.6 * value_noise(x, y, 6.0, seed) + 0.4 * value_noise(x, y, 2.7, seed + 1);
     (25.0 + 210.0 * t).round() as u8
 }
 
@@ -182,8 +161,8 @@ fn random_points(n: usize, seed: u64) -> Vec<[f32; 2]> {
     (0..n as u64)
         .map(|i| {
             [
-                (noise(i as f64 * 7.3, 0.5, 1.0, seed) * 640.0) as f32,
-                (noise(0.5, i as f64 * 5.1, 1.0, seed + 9) * 480.0) as f32,
+                (value_noise(i as f64 * 7.3, 0.5, 1.0, seed) * 640.0) as f32,
+                (value_noise(0.5, i as f64 * 5.1, 1.0, seed + 9) * 480.0) as f32,
             ]
         })
         .collect()

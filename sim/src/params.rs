@@ -722,6 +722,19 @@ pub fn require_non_negative(path: &str, value: f64) -> Result<f64, ParamError> {
     }
 }
 
+/// `value` if within `[lo, hi]` (a count: rollers, probes), else an error naming `path`.
+pub fn require_count_in(path: &str, value: u32, lo: u32, hi: u32) -> Result<u32, ParamError> {
+    if (lo..=hi).contains(&value) {
+        Ok(value)
+    } else {
+        Err(ParamError::new(
+            path,
+            format!("an integer in [{lo}, {hi}]"),
+            value,
+        ))
+    }
+}
+
 /// Checks `lo <= value <= hi` and finite.
 pub fn require_in(path: &str, value: f64, lo: f64, hi: f64) -> Result<f64, ParamError> {
     if value.is_finite() && value >= lo && value <= hi {

@@ -151,29 +151,17 @@ struct Part {
 
 /// Checks `[physics.mujoco]` (errors carry the key path).
 pub fn check(p: &MujocoParams) -> Result<(), crate::params::ParamError> {
-    use crate::params::{ParamError, require_in};
+    use crate::params::{require_count_in, require_in};
     let path = |k: &str| format!("physics.mujoco.{k}");
     require_in(&path("heightfield_cell_m"), p.heightfield_cell_m, 0.02, 1.0)?;
-    if !(6..=64).contains(&p.mecanum_rollers) {
-        return Err(ParamError::new(
-            path("mecanum_rollers"),
-            "an integer in [6, 64]",
-            p.mecanum_rollers,
-        ));
-    }
+    require_count_in(&path("mecanum_rollers"), p.mecanum_rollers, 6, 64)?;
     require_in(
         &path("roller_radius_fraction"),
         p.roller_radius_fraction,
         0.2,
         0.9,
     )?;
-    if !(2..=32).contains(&p.road_wheels) {
-        return Err(ParamError::new(
-            path("road_wheels"),
-            "an integer in [2, 32]",
-            p.road_wheels,
-        ));
-    }
+    require_count_in(&path("road_wheels"), p.road_wheels, 2, 32)?;
     require_in(
         &path("contact_timeconst_s"),
         p.contact_timeconst_s,

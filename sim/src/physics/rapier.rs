@@ -14,7 +14,7 @@
 use super::contact::{ContactModel, GroundProbe, JointKinematics, Motor, SoilParams};
 use super::{BodyState, CollisionEvent, JointState, Obstacle, Physics};
 use crate::params::{
-    ParamError, PhysicsParams, require_in, require_non_negative, require_positive,
+    ParamError, PhysicsParams, require_count_in, require_in, require_non_negative, require_positive,
 };
 use crate::robot::{Drive, MAX_DRIVE_JOINTS, RobotModel, Shape};
 use crate::world::{Surface, World};
@@ -160,21 +160,9 @@ fn check(p: &PhysicsParams) -> Result<(), ParamError> {
     )?;
     require_non_negative(&path("shear_damping_s"), p.shear_damping_s)?;
     require_in(&path("rolling_resistance"), p.rolling_resistance, 0.0, 1.0)?;
-    if !(2..=64).contains(&p.track_probes) {
-        return Err(ParamError::new(
-            path("track_probes"),
-            "an integer in [2, 64]",
-            p.track_probes,
-        ));
-    }
+    require_count_in(&path("track_probes"), p.track_probes, 2, 64)?;
     require_positive(&path("track_link_pitch_m"), p.track_link_pitch_m)?;
-    if !(3..=64).contains(&p.mecanum_rollers) {
-        return Err(ParamError::new(
-            path("mecanum_rollers"),
-            "an integer in [3, 64]",
-            p.mecanum_rollers,
-        ));
-    }
+    require_count_in(&path("mecanum_rollers"), p.mecanum_rollers, 3, 64)?;
     require_in(&path("ripple_m"), p.ripple_m, 0.0, 0.02)?;
     require_in(
         &path("motor_bandwidth_hz"),

@@ -102,6 +102,37 @@ fn drive_route<P: Physics>(m: &mut Dynamic<P>, route: &Route) -> Drive {
     }
 }
 
+/// Prints how a drive went and asserts that it completed without collisions, at most
+/// `max_cross_track_m` from the route and `max_end_error_m` from its end.
+fn assert_drove(
+    label: &str,
+    route: &Route,
+    d: &Drive,
+    max_cross_track_m: f64,
+    max_end_error_m: f64,
+) {
+    eprintln!(
+        "{label} ({:.1} m): {:?}, cross-track {:.3} m, end {:.3} m from the route's end, {} collisions",
+        route.total_length_m(),
+        d.outcome,
+        d.max_cross_track_m,
+        d.end_error_m,
+        d.collisions
+    );
+    assert_eq!(d.outcome, MotionOutcome::Completed, "{label}");
+    assert_eq!(d.collisions, 0, "{label}");
+    assert!(
+        d.max_cross_track_m < max_cross_track_m,
+        "{label}: cross-track {}",
+        d.max_cross_track_m
+    );
+    assert!(
+        d.end_error_m < max_end_error_m,
+        "{label}: end {}",
+        d.end_error_m
+    );
+}
+
 /// One route of every type in a 3-row, 20 m vineyard: a row loop, a serpentine, a closed
 /// polygon of waypoints and a there-and-back line.
 fn every_route_type(w: &World) -> Vec<(&'static str, Route)> {
@@ -175,25 +206,10 @@ fn both_robots_drive_every_route_type() {
                 &PhysicsParams::default(),
             );
             let d = drive_route(&mut m, &route);
-            eprintln!(
-                "{robot} {name} ({:.1} m): {:?}, cross-track {:.3} m, end {:.3} m from the route's end, {} collisions",
-                route.total_length_m(),
-                d.outcome,
-                d.max_cross_track_m,
-                d.end_error_m,
-                d.collisions
-            );
-            assert_eq!(d.outcome, MotionOutcome::Completed, "{robot} {name}");
-            assert_eq!(d.collisions, 0, "{robot} {name}");
             // The rover rides its 5 cm wheels on 2 cm rough soil with no suspension: wheels
             // lose load and traction over the bumps, and it wanders more than the tracks.
             let bound = if robot == "mecanum-rover" { 0.25 } else { 0.15 };
-            assert!(
-                d.max_cross_track_m < bound,
-                "{robot} {name}: {}",
-                d.max_cross_track_m
-            );
-            assert!(d.end_error_m < 0.1, "{robot} {name}: {}", d.end_error_m);
+            assert_drove(&format!("{robot} {name}"), &route, &d, bound, 0.1);
         }
     }
 }
@@ -544,22 +560,7 @@ fn every_route_type_on_mujoco() {
             )
             .unwrap();
             let d = drive_route(&mut m, &route);
-            eprintln!(
-                "MuJoCo {robot} {name} ({:.1} m): {:?}, cross-track {:.3} m, end {:.3} m from the route's end, {} collisions",
-                route.total_length_m(),
-                d.outcome,
-                d.max_cross_track_m,
-                d.end_error_m,
-                d.collisions
-            );
-            assert_eq!(d.outcome, MotionOutcome::Completed, "{robot} {name}");
-            assert_eq!(d.collisions, 0, "{robot} {name}");
-            assert!(
-                d.max_cross_track_m < 0.6,
-                "{robot} {name}: {}",
-                d.max_cross_track_m
-            );
-            assert!(d.end_error_m < 0.15, "{robot} {name}: {}", d.end_error_m);
+            assert_drove(&format!("MuJoCo {robot} {name}"), &route, &d, 0.6, 0.15);
         }
     }
 }
