@@ -150,6 +150,14 @@ pub const ROBOT_METRICS: &[(&str, &str)] = &[
         "largest angle between the body z axis and the vertical (degrees)",
     ),
     ("distance_m", "distance travelled by the body origin (m)"),
+    (
+        "compare_end_gap_m",
+        "largest horizontal distance between the run's end position and that of a `motion.compare_with` model (m)",
+    ),
+    (
+        "compare_path_separation_m",
+        "largest distance of a position of the run from the path of a `motion.compare_with` model (m)",
+    ),
 ];
 
 /// A comparison operator.
@@ -492,6 +500,19 @@ mod tests {
                     robot_position_m: [5.5, 0.0, 0.2],
                 })
                 .collect(),
+            // The largest of two comparisons counts.
+            comparisons: [(0.25, 0.375), (0.125, 0.5)]
+                .into_iter()
+                .map(|(gap, separation)| crate::report::ComparisonReport {
+                    model: "rapier".into(),
+                    completed: true,
+                    duration_s: 40.0,
+                    distance_m: 41.0,
+                    end_gap_m: gap,
+                    end_heading_deg: 1.0,
+                    max_path_separation_m: separation,
+                })
+                .collect(),
         }
     }
 
@@ -505,6 +526,8 @@ mod tests {
             ("max_heading_error_deg", 3.5),
             ("max_tilt_deg", 6.25),
             ("distance_m", 41.5),
+            ("compare_end_gap_m", 0.25),
+            ("compare_path_separation_m", 0.5),
         ];
         let mut names: Vec<&str> = ROBOT_METRICS.iter().map(|m| m.0).collect();
         let mut wanted: Vec<&str> = want.iter().map(|w| w.0).collect();
@@ -515,6 +538,12 @@ mod tests {
             assert_eq!(r.metric(name), Some(v), "{name}");
         }
         assert_eq!(robot(0, false).metric("route_completed"), Some(0.0));
+        // Without `motion.compare_with` the comparison metrics have no value.
+        let alone = crate::report::RobotReport {
+            comparisons: Vec::new(),
+            ..robot(0, true)
+        };
+        assert_eq!(alone.metric("compare_end_gap_m"), None);
         assert_eq!(r.metric("ate_rmse_m"), None);
         // No name is both a robot and an estimate metric.
         for (m, _) in ROBOT_METRICS {

@@ -150,6 +150,41 @@ pub struct RobotReport {
     pub metrics: RobotMetrics,
     /// Contacts with posts, trunks or the ground (chassis), in time order.
     pub collisions: Vec<CollisionEvent>,
+    /// The same route on the motion models of `motion.compare_with`.
+    pub comparisons: Vec<ComparisonReport>,
+}
+
+/// The route driven by another motion model (`motion.compare_with`), against the run.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ComparisonReport {
+    /// The other motion model (`motion.model` name).
+    pub model: String,
+    /// Whether it completed the route.
+    pub completed: bool,
+    /// Its simulated duration, s.
+    pub duration_s: f64,
+    /// Distance it travelled, m.
+    pub distance_m: f64,
+    /// Horizontal distance between its end position and the run's, m.
+    pub end_gap_m: f64,
+    /// Its end heading minus the run's, degrees.
+    pub end_heading_deg: f64,
+    /// The farthest a position of the run lies from its path, m.
+    pub max_path_separation_m: f64,
+}
+
+impl ComparisonReport {
+    fn new(c: &crate::runner::MotionComparison) -> ComparisonReport {
+        ComparisonReport {
+            model: c.model.name().to_string(),
+            completed: c.outcome == MotionOutcome::Completed,
+            duration_s: c.duration_s,
+            distance_m: c.distance_m,
+            end_gap_m: c.end_gap_m,
+            end_heading_deg: c.end_heading_deg,
+            max_path_separation_m: c.max_path_separation_m,
+        }
+    }
 }
 
 impl RobotReport {
@@ -173,6 +208,7 @@ impl RobotReport {
             route_completed: sim.route_completed,
             metrics: sim.robot.clone(),
             collisions: sim.collisions.clone(),
+            comparisons: sim.comparisons.iter().map(ComparisonReport::new).collect(),
         }
     }
 
@@ -187,8 +223,15 @@ impl RobotReport {
             "max_heading_error_deg" => Some(m.max_heading_error_deg),
             "max_tilt_deg" => Some(m.max_tilt_deg),
             "distance_m" => Some(m.distance_m),
+            "compare_end_gap_m" => self.largest(|c| c.end_gap_m),
+            "compare_path_separation_m" => self.largest(|c| c.max_path_separation_m),
             _ => None,
         }
+    }
+
+    /// The largest `f` over the comparisons (`None` without any).
+    fn largest(&self, f: impl Fn(&ComparisonReport) -> f64) -> Option<f64> {
+        self.comparisons.iter().map(f).reduce(f64::max)
     }
 
     /// The Markdown section (`## Robot`).
@@ -207,6 +250,28 @@ impl RobotReport {
                 (_, v) => fmt_opt(v, 3),
             };
             let _ = writeln!(md, "| `{name}.robot` | {value} | {meaning} |");
+        }
+        if !self.comparisons.is_empty() {
+            let _ = writeln!(
+                md,
+                "\nThe same route on other motion models (`motion.compare_with`; their paths \
+                 are on trajectories.svg, their ground truth in `ground_truth_<model>.tum`):\n\n\
+                 | model | completed | duration [s] | driven [m] | end gap [m] | end heading [deg] | path separation [m] |\n\
+                 |---|---|---:|---:|---:|---:|---:|"
+            );
+            for c in &self.comparisons {
+                let _ = writeln!(
+                    md,
+                    "| {} | {} | {:.1} | {:.1} | {:.3} | {:.2} | {:.3} |",
+                    c.model,
+                    if c.completed { "yes" } else { "no" },
+                    c.duration_s,
+                    c.distance_m,
+                    c.end_gap_m,
+                    c.end_heading_deg,
+                    c.max_path_separation_m
+                );
+            }
         }
         if self.collisions.is_empty() {
             let _ = writeln!(md, "\nNo collisions.");
@@ -576,6 +641,21 @@ pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunErr
         .iter()
         .map(|e| (e.name, &e.trajectory))
         .collect();
+    let compared: Vec<String> = sim
+        .comparisons
+        .iter()
+        .map(|c| format!("truth ({})", c.model.name()))
+        .collect();
+    let top_view: Vec<(&str, &Trajectory)> = named
+        .iter()
+        .copied()
+        .chain(
+            compared
+                .iter()
+                .zip(&sim.comparisons)
+                .map(|(n, c)| (n.as_str(), &c.truth)),
+        )
+        .collect();
     let series: Vec<(&str, &[(Nanos, f64)])> = report
         .sources
         .iter()
@@ -584,7 +664,7 @@ pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunErr
     // Plots are an aid: a plotting failure is reported in the Markdown, not fatal.
     let mut notes = Vec::new();
     if let Err(e) =
-        scoring::plots::plot_trajectories_svg(dir.join("trajectories.svg"), &sim.truth, &named)
+        scoring::plots::plot_trajectories_svg(dir.join("trajectories.svg"), &sim.truth, &top_view)
     {
         notes.push(format!("trajectories.svg: {e}"));
     }

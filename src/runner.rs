@@ -13,6 +13,7 @@ use crate::report::{self, Report, RobotReport};
 use crate::scenario::{LoadedScenario, ScenarioError};
 use crate::scoring::{self, SourceScore};
 use indicatif::{ProgressBar, ProgressStyle};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use serde::Serialize;
 use std::cmp::Reverse;
@@ -110,6 +111,103 @@ pub struct Simulation {
     pub fault_windows: Vec<(Nanos, Nanos)>,
     /// The maps of `[mapper]` with what scoring needs (`None` when mapping is off).
     pub mapping: Option<crate::mapping::MappingOutput>,
+    /// The same route on the motion models of `motion.compare_with`.
+    pub comparisons: Vec<MotionComparison>,
+}
+
+/// The run's route driven by another motion model (`motion.compare_with`, e.g. the other
+/// physics engine): same robot, world, start, controller and stop rules, no sensors.
+#[derive(Clone, Debug, Serialize)]
+pub struct MotionComparison {
+    /// The other motion model.
+    pub model: MotionModelKind,
+    /// Its ground truth, at the scenario's ground-truth rate.
+    #[serde(skip)]
+    pub truth: Trajectory,
+    /// How its motion ended.
+    pub outcome: MotionOutcome,
+    /// Its simulated duration, s.
+    pub duration_s: f64,
+    /// Distance it travelled, m.
+    pub distance_m: f64,
+    /// Horizontal distance between its end position and the run's, m.
+    pub end_gap_m: f64,
+    /// Its end heading minus the run's, wrapped to (-180, 180], degrees.
+    pub end_heading_deg: f64,
+    /// The farthest any position of the run lies from this model's path (nearest of its
+    /// positions, horizontal), m.
+    pub max_path_separation_m: f64,
+}
+
+/// Drives `motion` along its route like the main loop (ground-truth samples at
+/// `gt_rate_hz` from `start` until it finishes or a stop of `stops` passes) and compares
+/// the result with the run's `truth`.
+fn drive_comparison(
+    model: MotionModelKind,
+    motion: &mut dyn MotionModel,
+    start: Nanos,
+    gt_rate_hz: f64,
+    hard_stop: Option<Nanos>,
+    truth: &Trajectory,
+) -> MotionComparison {
+    let safety_stop =
+        start + Nanos(motion.expected_duration().0.saturating_mul(3)) + Nanos::from_secs(60);
+    let mut theirs = Trajectory::new();
+    let (mut last_t, mut odometer_m) = (start, 0.0);
+    for i in 0_i64.. {
+        let t = start + Nanos((i as f64 * 1e9 / gt_rate_hz).round() as i64);
+        if hard_stop.is_some_and(|h| t > h) || t > safety_stop {
+            break;
+        }
+        let state = motion.advance_to(t);
+        theirs.push(PoseSample {
+            stamp: t,
+            world_from_body: state.world_from_body,
+            covariance: None,
+        });
+        (last_t, odometer_m) = (t, state.odometer_m);
+        if motion.finished() {
+            break;
+        }
+    }
+    let horizontal: Vec<[f64; 2]> = theirs.positions().map(|p| [p.x, p.y]).collect();
+    let max_path_separation_m = if horizontal.is_empty() {
+        f64::INFINITY
+    } else {
+        let tree: ImmutableKdTree<f64, 2> = ImmutableKdTree::new_from_slice(&horizontal);
+        truth
+            .positions()
+            .map(|p| {
+                tree.nearest_one::<SquaredEuclidean>(&[p.x, p.y])
+                    .distance
+                    .sqrt()
+            })
+            .fold(0.0, f64::max)
+    };
+    let ends = truth.samples.last().zip(theirs.samples.last());
+    let (end_gap_m, end_heading_deg) = ends.map_or((f64::INFINITY, f64::NAN), |(a, b)| {
+        let gap = (b.world_from_body.translation.vector - a.world_from_body.translation.vector)
+            .xy()
+            .norm();
+        let heading = |q: &nalgebra::UnitQuaternion<f64>| {
+            let x = q * nalgebra::Vector3::x();
+            x.y.atan2(x.x)
+        };
+        let d = heading(&b.world_from_body.rotation) - heading(&a.world_from_body.rotation);
+        let wrapped =
+            -(-d + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) + std::f64::consts::PI;
+        (gap, wrapped.to_degrees())
+    });
+    MotionComparison {
+        model,
+        truth: theirs,
+        outcome: motion.outcome(),
+        duration_s: (last_t - start).as_secs_f64(),
+        distance_m: odometer_m,
+        end_gap_m,
+        end_heading_deg,
+        max_path_separation_m,
+    }
 }
 
 /// A time limit that ends a simulation whose motion has not finished.
@@ -253,6 +351,8 @@ pub struct Setup {
     pub stop: Option<Arc<AtomicBool>>,
     /// The mappers of `[mapper]` (`None` when mapping is off).
     pub mapping: Option<crate::mapping::MappingStage>,
+    /// The other motion models of `motion.compare_with`, at rest at the start.
+    pub comparisons: Vec<(MotionModelKind, Box<dyn MotionModel>)>,
 }
 
 /// Builds the world, robot, route, motion model, sensors and estimators of a scenario;
@@ -278,54 +378,34 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
             RouteTracking::new(route.clone(), s.motion.heading, s.motion.heading_offset_deg)
         }
     };
-    let motion: Box<dyn MotionModel> = match s.motion.model {
-        MotionModelKind::Kinematic => Box::new(
-            KinematicSkidSteer::new(
-                &s.motion,
-                route,
-                world.terrain.clone(),
-                &robot.geometry,
-                sc.start,
-            )
-            .map_err(|e| sc.param_error(e))?,
-        ),
-        MotionModelKind::Rapier => {
-            let (lo, hi) = world.terrain.domain();
-            let cell = s.physics.heightfield_cell_m;
-            // An unusable cell size is reported by the backend's parameter check; do not
-            // sample a grid of it first.
-            let grid = (cell.is_finite() && cell >= MIN_HEIGHTFIELD_CELL_M)
-                .then(|| HeightGrid::sample(&world.terrain, lo, hi, cell));
-            let obstacles = obstacles_of(&world);
-            Box::new(
-                Dynamic::new(
-                    &s.motion,
-                    &s.physics,
-                    route,
-                    &robot,
-                    &world.terrain,
-                    gravity_mps2,
-                    sc.start,
-                    |pose| {
-                        RapierPhysics::new(
-                            &robot,
-                            Scene {
-                                surface: world.terrain.clone(),
-                                obstacles: &obstacles,
-                                ground: grid.as_ref(),
-                            },
-                            &s.physics,
-                            s.motion.step_hz,
-                            gravity_mps2,
-                            pose,
-                        )
-                    },
+    let motion = motion_model(
+        s.motion.model,
+        "motion.model",
+        s,
+        &route,
+        &robot,
+        &world,
+        gravity_mps2,
+        sc,
+    )?;
+    let mut comparisons = Vec::new();
+    for (i, &kind) in s.motion.compare_with.iter().enumerate() {
+        let field = format!("motion.compare_with[{i}]");
+        if kind == s.motion.model || s.motion.compare_with[..i].contains(&kind) {
+            return Err(sc
+                .field_error(
+                    &field,
+                    format!(
+                        "expected motion models other than `motion.model` and each once, found {kind:?} again"
+                    ),
                 )
-                .map_err(|e| sc.param_error(e))?,
-            )
+                .into());
         }
-        MotionModelKind::Mujoco => mujoco_motion(s, route, &robot, &world, gravity_mps2, sc)?,
-    };
+        comparisons.push((
+            kind,
+            motion_model(kind, &field, s, &route, &robot, &world, gravity_mps2, sc)?,
+        ));
+    }
 
     let enu = LocalEnu::new(s.origin);
     let ctx = SensorContext {
@@ -387,6 +467,72 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         recorder: None,
         stop: None,
         mapping,
+        comparisons,
+    })
+}
+
+/// The motion model `kind` of a scenario, on its route from its start; `field` names the
+/// key that chose it in errors.
+#[allow(clippy::too_many_arguments)]
+fn motion_model(
+    kind: MotionModelKind,
+    field: &str,
+    s: &crate::scenario::Scenario,
+    route: &vinebench_sim::route::Route,
+    robot: &RobotModel,
+    world: &World,
+    gravity_mps2: f64,
+    sc: &LoadedScenario,
+) -> Result<Box<dyn MotionModel>, RunError> {
+    Ok(match kind {
+        MotionModelKind::Kinematic => Box::new(
+            KinematicSkidSteer::new(
+                &s.motion,
+                route.clone(),
+                world.terrain.clone(),
+                &robot.geometry,
+                sc.start,
+            )
+            .map_err(|e| sc.param_error(e))?,
+        ),
+        MotionModelKind::Rapier => {
+            let (lo, hi) = world.terrain.domain();
+            let cell = s.physics.heightfield_cell_m;
+            // An unusable cell size is reported by the backend's parameter check; do not
+            // sample a grid of it first.
+            let grid = (cell.is_finite() && cell >= MIN_HEIGHTFIELD_CELL_M)
+                .then(|| HeightGrid::sample(&world.terrain, lo, hi, cell));
+            let obstacles = obstacles_of(world);
+            Box::new(
+                Dynamic::new(
+                    &s.motion,
+                    &s.physics,
+                    route.clone(),
+                    robot,
+                    &world.terrain,
+                    gravity_mps2,
+                    sc.start,
+                    |pose| {
+                        RapierPhysics::new(
+                            robot,
+                            Scene {
+                                surface: world.terrain.clone(),
+                                obstacles: &obstacles,
+                                ground: grid.as_ref(),
+                            },
+                            &s.physics,
+                            s.motion.step_hz,
+                            gravity_mps2,
+                            pose,
+                        )
+                    },
+                )
+                .map_err(|e| sc.param_error(e))?,
+            )
+        }
+        MotionModelKind::Mujoco => {
+            mujoco_motion(field, s, route.clone(), robot, world, gravity_mps2, sc)?
+        }
     })
 }
 
@@ -423,6 +569,7 @@ pub fn simulate_setup(
         stop,
         mut mapping,
         renderer,
+        mut comparisons,
         ..
     } = built;
     let mut png = png_dir.map(|d| crate::images::PngDump::new(&d, s.render.debug_png_every));
@@ -560,7 +707,12 @@ pub fn simulate_setup(
             )
         })
         .collect();
+    let comparisons = comparisons
+        .iter_mut()
+        .map(|(kind, m)| drive_comparison(*kind, m.as_mut(), start, gt_rate, hard_stop, &truth))
+        .collect();
     let sim = Simulation {
+        comparisons,
         truth,
         estimates,
         stage,
@@ -728,6 +880,10 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
         let p = dir.join(format!("estimate_{}.tum", e.name));
         scoring::tum::write_tum(&p, &e.trajectory).map_err(io_err(&p))?;
     }
+    for c in &sim.comparisons {
+        let p = dir.join(format!("ground_truth_{}.tum", c.model.name()));
+        scoring::tum::write_tum(&p, &c.truth).map_err(io_err(&p))?;
+    }
     let scores = score(sc, &sim);
     let expectations = evaluate(sc, &scores);
     let report = Report::new(sc, &sim, scores, expectations);
@@ -789,6 +945,7 @@ pub(crate) fn utc_stamp() -> String {
 /// heightfield of `physics.mujoco.heightfield_cell_m`.
 #[cfg(feature = "mujoco")]
 fn mujoco_motion(
+    _field: &str,
     s: &crate::scenario::Scenario,
     route: vinebench_sim::route::Route,
     robot: &RobotModel,
@@ -830,6 +987,7 @@ fn mujoco_motion(
 /// get it.
 #[cfg(not(feature = "mujoco"))]
 fn mujoco_motion(
+    field: &str,
     _s: &crate::scenario::Scenario,
     _route: vinebench_sim::route::Route,
     _robot: &RobotModel,
@@ -839,7 +997,7 @@ fn mujoco_motion(
 ) -> Result<Box<dyn MotionModel>, RunError> {
     Err(sc
         .field_error(
-            "motion.model",
+            field,
             "\"mujoco\" needs a vinebench built with the `mujoco` feature: run \
              `bash scripts/install-mujoco.sh`, then `cargo run --release --features mujoco -- run ...`",
         )

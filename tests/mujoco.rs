@@ -1,6 +1,7 @@
 //! The MuJoCo backend end to end (cargo feature `mujoco`): its scenarios meet their
-//! expectations, the robot drives the same route on both engines, and a build without the
-//! feature refuses `motion.model = "mujoco"` with a message that says how to get it.
+//! expectations, the robot drives the same route on both engines (`motion.compare_with`),
+//! and a build without the feature refuses `motion.model = "mujoco"` with a message that
+//! says how to get it.
 
 // Test helpers panic on failure by design.
 #![allow(clippy::unwrap_used)]
@@ -31,36 +32,39 @@ fn slope_row_on_mujoco_meets_its_expectations_and_follows_rapier() {
         .collect();
     assert!(failed.is_empty(), "{}", failed.join("\n"));
 
-    // The same scenario on rapier: the two robots drive the same route (up and down a
-    // 10° slope, two headland turns) with the same controller. The route takes as long
-    // within 5 %, and their paths lie within 1 m of each other (every 10th MuJoCo pose
-    // against the nearest rapier pose). The path tolerance is loose on purpose: on
-    // MuJoCo's contacts the skid-steering robot turns about 40 % slower for the same track
-    // speeds than on rapier's soil model, so it swings up to 0.8 m wide of the route in
-    // the headland turns on the slope (0.2 m on rapier; measured 0.70 m apart).
-    let mut rapier = sc.clone();
-    rapier.scenario.motion.model = vinebench_sim::params::MotionModelKind::Rapier;
-    let other = simulate(&rapier, None).unwrap_or_else(|e| panic!("{e}"));
-    assert!(other.route_completed);
-    let theirs: Vec<_> = other.truth.positions().collect();
-    let worst = sim
+    // The same route on rapier (`compare_with`), with the same controller: it takes as
+    // long within 5 %, and the paths and ends agree (the scenario's expectations bound
+    // them; printed here).
+    let [c] = sim.comparisons.as_slice() else {
+        panic!("expected one comparison, found {}", sim.comparisons.len());
+    };
+    assert_eq!(c.model, vinebench_sim::params::MotionModelKind::Rapier);
+    assert_eq!(c.outcome, vinebench_sim::motion::MotionOutcome::Completed);
+    let ratio = sim.duration_s / c.duration_s;
+    eprintln!(
+        "MuJoCo {:.1} s, {:.1} m; rapier {:.1} s, {:.1} m; ends {:.3} m and {:.2}° apart, paths at most {:.3} m apart",
+        sim.duration_s,
+        sim.distance_m,
+        c.duration_s,
+        c.distance_m,
+        c.end_gap_m,
+        c.end_heading_deg,
+        c.max_path_separation_m
+    );
+    assert!((ratio - 1.0).abs() < 0.05, "durations differ by {ratio}");
+    // The separation against an independent brute-force nearest-point search.
+    let theirs: Vec<_> = c.truth.positions().collect();
+    let brute = sim
         .truth
         .positions()
-        .step_by(10)
         .map(|p| {
             theirs
                 .iter()
-                .map(|q| (p - q).norm())
+                .map(|q| (p - q).xy().norm())
                 .fold(f64::INFINITY, f64::min)
         })
         .fold(0.0, f64::max);
-    let ratio = sim.duration_s / other.duration_s;
-    eprintln!(
-        "MuJoCo {:.1} s, {:.1} m; rapier {:.1} s, {:.1} m; paths at most {worst:.3} m apart",
-        sim.duration_s, sim.distance_m, other.duration_s, other.distance_m
-    );
-    assert!(worst < 1.0, "paths {worst} m apart");
-    assert!((ratio - 1.0).abs() < 0.05, "durations differ by {ratio}");
+    assert!((brute - c.max_path_separation_m).abs() < 1e-9);
 }
 
 #[cfg(not(feature = "mujoco"))]

@@ -87,12 +87,20 @@ fn the_defaults_run_as_a_scenario() {
 #[test]
 fn the_kinematic_model_still_runs_a_scenario() {
     // The short test loop with the terrain-following kinematic model instead of physics:
-    // same expectations, and a robot that follows its route exactly.
+    // same expectations, and a robot that follows its route exactly. Rapier drives the
+    // same route alongside (`compare_with`).
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/short-loop.toml");
-    let text = std::fs::read_to_string(&path)
-        .unwrap()
-        .replace("[motion]\n", "[motion]\nmodel = \"kinematic\"\n");
+    let text = std::fs::read_to_string(&path).unwrap().replace(
+        "[motion]\n",
+        "[motion]\nmodel = \"kinematic\"\ncompare_with = [\"rapier\"]\n",
+    );
     assert!(text.contains("model = \"kinematic\""));
+    // A model compared with itself is an error that names the key.
+    let itself = text.replace("[\"rapier\"]", "[\"rapier\", \"kinematic\"]");
+    let sc = LoadedScenario::from_str(&itself, "short-loop-kinematic.toml").unwrap();
+    let e = vinebench::runner::validate(&sc).err().unwrap().to_string();
+    assert!(e.contains("motion.compare_with[1]"), "{e}");
+    assert!(e.contains("short-loop-kinematic.toml"), "{e}");
     let sc = LoadedScenario::from_str(&text, "short-loop-kinematic.toml").unwrap();
     let sim = simulate(&sc, None).unwrap_or_else(|e| panic!("{e}"));
     assert!(sim.route_completed);
@@ -108,6 +116,18 @@ fn the_kinematic_model_still_runs_a_scenario() {
         "{}",
         sim.robot.max_cross_track_m
     );
+    // Rapier's robot completes the same route; its path stays within its own cross-track
+    // bound of the route (0.3 m) of the kinematic one, which lies on the route.
+    let [c] = sim.comparisons.as_slice() else {
+        panic!("{} comparisons", sim.comparisons.len())
+    };
+    assert_eq!(c.outcome, vinebench_sim::motion::MotionOutcome::Completed);
+    eprintln!(
+        "rapier: end {:.3} m away, paths {:.3} m apart",
+        c.end_gap_m, c.max_path_separation_m
+    );
+    assert!(c.max_path_separation_m < 0.3, "{}", c.max_path_separation_m);
+    assert!(c.end_gap_m < 0.3, "{}", c.end_gap_m);
 }
 
 #[test]

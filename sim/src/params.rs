@@ -224,6 +224,17 @@ pub enum MotionModelKind {
     Kinematic,
 }
 
+impl MotionModelKind {
+    /// The name scenarios use (`motion.model`).
+    pub fn name(self) -> &'static str {
+        match self {
+            MotionModelKind::Rapier => "rapier",
+            MotionModelKind::Mujoco => "mujoco",
+            MotionModelKind::Kinematic => "kinematic",
+        }
+    }
+}
+
 /// How a holonomic robot points while it follows its route.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -268,6 +279,8 @@ pub struct MotionParams {
     pub heading: HeadingMode,
     /// Heading relative to the route tangent, degrees (holonomic robots).
     pub heading_offset_deg: f64,
+    /// Other motion models that drive the same route for comparison (ground truth only).
+    pub compare_with: Vec<MotionModelKind>,
 }
 default_from_section!(MotionParams, "motion");
 

@@ -13,12 +13,18 @@
 //!   along the URDF's ground-contact roller axis (`fdir1`) turned about the axle, sized so
 //!   that neighbouring rollers meet and the wheel is round to `(1 - f)·r·(1/cos(π/n) - 1)`;
 //! - a track is a conveyor: `road_wheels` spheres of the belt's end radius along its
-//!   ground run, fixed to the chassis, whose surface velocity (MuJoCo's `surfacevel`) the
-//!   backend sets every step to the belt speed of its sprocket; the sprocket is the
-//!   backend's drive-train model (the rapier backend's [`super::contact::Motor`]), loaded
-//!   by the friction on the spheres. (Spinning road-wheel bodies were tried first: on
-//!   MuJoCo's soft contacts their light rims took little traction and the robot turned in
-//!   place at a third of the Coulomb rate);
+//!   ground run, whose surface velocity (MuJoCo's `surfacevel`) the backend sets every
+//!   step to the belt speed of its sprocket; the sprocket is the backend's drive-train
+//!   model (the rapier backend's [`super::contact::Motor`]), loaded by the friction on the
+//!   spheres. Track friction is anisotropic (`mu1` along the belt, `mu2` across it) and
+//!   MuJoCo cannot orient a contact frame on a heightfield, so each sphere rolls sideways
+//!   on a hinge along the belt: the backend sets, every step, the hinge's dry friction to
+//!   the sideways part and the contact's coefficient to the whole of the elliptic Coulomb
+//!   force for the sphere's load and slip direction (see [`super::mujoco`]). Tried and
+//!   measured first: spinning road-wheel bodies (their light rims took little traction on
+//!   soft contacts; the robot turned in place at a third of the Coulomb rate), isotropic
+//!   `mu2` belts (turned 40 % slower than rapier's tracks, stuck in tight headland turns)
+//!   and independent along/across limits (no skid at all when turning in place);
 //! - the terrain is a heightfield (`hfield`) whose elevations are written after the model
 //!   is compiled ([`Mjcf::hfield`]); posts, trunks and occluders are static geoms.
 //!
@@ -44,6 +50,16 @@ pub const OBSTACLE_BIT: u32 = 2;
 /// Share of a mecanum wheel link's mass in its rollers.
 const ROLLER_MASS_SHARE: f64 = 0.3;
 
+/// Armature of a belt sphere's sideways hinge, kg·m²: keeps the light sphere's dry
+/// friction stable at millisecond steps.
+const BELT_ARMATURE_KGM2: f64 = 1e-3;
+
+/// `solreffriction` of a belt sphere's sideways dry friction: stiff (time constant of
+/// two millisecond steps), so the belt does not creep sideways under a load below its
+/// friction limit (with MuJoCo's default, 0.02 s, the tracked robot swung measurably
+/// wider in headland turns).
+const BELT_SOLREF_FRICTION: &str = "0.002 1";
+
 /// Names of the geoms the backend looks up after compiling.
 pub mod names {
     /// The terrain heightfield (asset and geom).
@@ -57,6 +73,10 @@ pub mod names {
     /// The robot's collision shape `i` (index in `RobotModel::collision_shapes`).
     pub fn collision(i: usize) -> String {
         format!("collision_{i}")
+    }
+    /// The sideways hinge of the belt sphere (geom and body) named `sphere`.
+    pub fn belt_roll(sphere: &str) -> String {
+        format!("{sphere}_roll")
     }
 }
 
@@ -384,36 +404,49 @@ pub fn generate(robot: &RobotModel, scene: &SceneSpec<'_>) -> Result<Mjcf, MjcfE
             }
         }
         Drive::Tracked(t) => {
-            // A track is a conveyor: spheres of the belt's end radius along its ground run,
-            // fixed to the chassis, whose surface moves backwards at the belt's speed
-            // (MuJoCo's geom surface velocity, set every step from the sprocket's speed).
-            // The sprocket is the backend's drive-train model, loaded by the friction the
-            // ground exerts on these spheres.
+            // A track is a conveyor: spheres of the belt's end radius along its ground run
+            // whose surface moves backwards at the belt's speed (MuJoCo's geom surface
+            // velocity, set every step from the sprocket's speed). The sprocket is the
+            // backend's drive-train model, loaded by the friction the ground exerts on
+            // these spheres.
+            //
+            // Each sphere rolls sideways on a hinge along the belt, held by dry friction
+            // (`frictionloss`, torque = force × radius). Written here for mu2 at the
+            // sphere's share of the robot's weight on level ground, mu1 on the contact;
+            // the backend rewrites both every step from the sphere's load and slip.
             let n = p.road_wheels as usize;
+            let weight_n = robot.inertia.mass_kg * scene.gravity_mps2 / (2 * n) as f64;
             for track in [&t.left, &t.right] {
                 let rr = track.height_m / 2.0;
                 let run = track.length_m - track.height_m;
                 let centre = track.body_from_track.translation.vector;
-                let fwd = track.body_from_track.rotation * Vector3::x();
-                // Isotropic Coulomb friction (MuJoCo cannot orient a sphere's contact
-                // frame): the belt's lateral coefficient, which sets how hard the robot
-                // skids when it turns.
-                let mu = track.contact.mu2;
+                let rotation = track.body_from_track.rotation;
+                let fwd = rotation * Vector3::x();
+                let mu1 = track.contact.mu1;
+                let lateral_nm = track.contact.mu2 * scene.friction_scale * weight_n * rr;
+                let mass = ROLLER_MASS_SHARE * track.sprocket.link_mass_kg / n as f64;
                 let mut members = Vec::with_capacity(n);
                 for i in 0..n {
                     let along = -run / 2.0 + run * i as f64 / (n - 1) as f64;
                     let pos = centre + fwd * along;
                     let name = format!("{}_belt_{i}", track.link);
-                    // Nonzero at compile time, so that the model's `flg_surfacevel` (some
-                    // geom has a surface velocity) is set; the backend rewrites the values
-                    // every step.
+                    // The geom's surface velocity is nonzero at compile time, so that the
+                    // model's `flg_surfacevel` (some geom has a surface velocity) is set;
+                    // the backend rewrites the values every step.
                     let _ = writeln!(
                         belts,
-                        "      <geom type=\"sphere\" size=\"{rr}\" pos=\"{}\" quat=\"{}\" mass=\"0\" surfacevel=\"1e-12 0 0 0 0 0\" {}/>",
+                        "      <body name=\"{name}\" pos=\"{}\" quat=\"{}\">\n        <joint name=\"{}\" type=\"hinge\" axis=\"1 0 0\" frictionloss=\"{lateral_nm}\" solreffriction=\"{BELT_SOLREF_FRICTION}\" armature=\"{BELT_ARMATURE_KGM2}\"/>\n        <geom type=\"sphere\" size=\"{rr}\" mass=\"{mass}\" surfacevel=\"1e-12 0 0 0 0 0\" {}/>\n      </body>",
                         v3(&pos),
-                        quat(&track.body_from_track.rotation),
-                        ground_geom(&name, mu),
+                        quat(&rotation),
+                        names::belt_roll(&name),
+                        ground_geom(&name, mu1),
                     );
+                    parts.push(Part {
+                        mass_kg: mass,
+                        centre: pos,
+                        inertia: Matrix3::identity() * (0.4 * mass * rr * rr),
+                    });
+                    body_masses_kg.push((name.clone(), mass));
                     members.push(name);
                 }
                 drives.push(members);
@@ -562,13 +595,17 @@ mod tests {
             obstacles: &obstacles,
             world_from_body: Isometry3::translation(0.0, 0.0, 0.3),
             dt_s: 0.001,
-            gravity_mps2: 9.8,
+            gravity_mps2: spec_gravity(),
             friction_scale: 1.0,
             motor_bandwidth_hz: 8.0,
             params,
         };
         let m = generate(&robot, &spec).unwrap();
         (robot, m)
+    }
+
+    fn spec_gravity() -> f64 {
+        9.8
     }
 
     #[test]
@@ -589,12 +626,28 @@ mod tests {
             let (bodies, actuators) = match name {
                 // base + 4 hubs + their rollers.
                 "mecanum-rover" => (1 + 4 + 4 * p.mecanum_rollers as usize, 4),
-                // base only: the belts are geoms on it, driven by the backend.
-                _ => (1, 0),
+                // base + the belt spheres, driven by the backend.
+                _ => (1 + 2 * p.road_wheels as usize, 0),
             };
             assert_eq!(count("body"), bodies, "{name}");
             assert_eq!(count("velocity"), actuators, "{name}");
             assert_eq!(m.drives.len(), robot.drive.joints().len());
+            // Tracks: the sideways dry friction of all belt spheres is mu2 times the
+            // robot's weight (torque = force × sphere radius).
+            if let crate::robot::Drive::Tracked(t) = &robot.drive {
+                let radius_m = t.left.height_m / 2.0;
+                let sideways_n: f64 = doc
+                    .descendants()
+                    .filter(|n| n.has_tag_name("joint") && n.attribute("type") == Some("hinge"))
+                    .filter_map(|n| n.attribute("frictionloss"))
+                    .map(|f| f.parse::<f64>().unwrap() / radius_m)
+                    .sum();
+                let expected = t.left.contact.mu2 * robot.inertia.mass_kg * spec_gravity();
+                assert!(
+                    (sideways_n - expected).abs() < 1e-9 * expected,
+                    "{sideways_n} N vs {expected} N"
+                );
+            }
             // The heightfield matches the grid (4 m × 2 m at 0.5 m) and spans [0, 1].
             assert_eq!((m.hfield.nrow, m.hfield.ncol), (5, 9));
             let (lo, hi) = m

@@ -15,7 +15,15 @@
 //!   stable, plus the integral part as an offset on its control;
 //! - a track's sprocket is a [`Motor`] stepped here, loaded by the ground's friction on its
 //!   belt (the contact forces of the previous step), and its speed sets the belt's surface
-//!   velocity for the next.
+//!   velocity for the next;
+//! - a belt sphere's friction is elliptic anisotropic Coulomb friction (maximum
+//!   dissipation): slipping by `(s_l, s_t)` along and across the belt, the ground pushes
+//!   back with `N·(mu1·c_l, mu2·c_t)`, `(c_l, c_t) = (mu1·|s_l|, mu2·|s_t|) / norm`
+//!   (regularized below 1 cm/s of slip, where both grip fully). MuJoCo's contacts are
+//!   isotropic, so the sideways part is the dry friction of the sphere's sideways hinge
+//!   and the contact's coefficient is the whole, `hypot(mu1·c_l, mu2·c_t)`; both are set
+//!   before each step from the sphere's normal force of the step before and its slip at
+//!   the start of the step.
 //!
 //! The library is `libmujoco.so.3.17.0` from the PyPI wheel (`scripts/install-mujoco.sh`).
 //! mujoco-rs's types stay in this file.
@@ -28,6 +36,9 @@ use crate::params::{ParamError, PhysicsParams, require_in};
 use crate::robot::{MAX_DRIVE_JOINTS, RobotModel};
 use mujoco_rs::prelude::{MjData, MjModel, MjtObjBase};
 use nalgebra::{Isometry3, Matrix3, Quaternion, Translation3, UnitQuaternion, Vector3};
+
+/// Slip speed below which a belt point grips fully both ways, m/s.
+const SLIP_SCALE_MPS: f64 = 0.01;
 
 /// A robot-obstacle contact that has been apart this long begins anew, s.
 const RECONTACT_S: f64 = 0.1;
@@ -92,6 +103,16 @@ struct Wheel {
 struct Belt {
     motor: Motor,
     geoms: Vec<usize>,
+    /// The `qvel` address of each belt sphere's sideways hinge (same order as `geoms`).
+    roll_dofs: Vec<usize>,
+    /// Each belt sphere's normal force in the last step, N (same order as `geoms`).
+    normal_n: Vec<f64>,
+    /// Each belt sphere's centre in the body frame (same order as `geoms`).
+    centres_in_body: Vec<Vector3<f64>>,
+    /// Friction coefficients along the belt and across it (`friction_scale` applied).
+    mu: [f64; 2],
+    /// Belt sphere radius, m.
+    sphere_radius_m: f64,
     /// Sprocket pitch radius, m.
     radius_m: f64,
     /// The belt's forward direction in the body frame.
@@ -213,8 +234,30 @@ impl MujocoPhysics {
                         .iter()
                         .map(|name| id(MjtObjBase::mjOBJ_GEOM, name))
                         .collect::<Result<Vec<_>, _>>()?;
+                    let roll_dofs = train
+                        .members
+                        .iter()
+                        .map(|name| {
+                            let joint = id(MjtObjBase::mjOBJ_JOINT, &names::belt_roll(name))?;
+                            Ok(model.jnt_dofadr()[joint] as usize)
+                        })
+                        .collect::<Result<Vec<_>, MujocoError>>()?;
                     drives.push(Drive::Belt(Belt {
                         motor: Motor::for_joint(j, share, params.motor_bandwidth_hz),
+                        normal_n: vec![0.0; geoms.len()],
+                        centres_in_body: geoms
+                            .iter()
+                            .map(|&g| {
+                                let body = model.geom_bodyid()[g] as usize;
+                                Vector3::from(model.body_pos()[body])
+                            })
+                            .collect(),
+                        mu: [
+                            track.contact.mu1 * params.friction_scale,
+                            track.contact.mu2 * params.friction_scale,
+                        ],
+                        sphere_radius_m: track.height_m / 2.0,
+                        roll_dofs,
                         geoms,
                         radius_m: j.radius_m,
                         forward_in_body: track.body_from_track.rotation * Vector3::x(),
@@ -278,13 +321,15 @@ impl MujocoPhysics {
         )
     }
 
-    /// The ground's torque on each belt's sprocket from the contacts of the last step:
-    /// minus the pitch radius times the friction along the belt.
+    /// From the contacts of the last step: the ground's torque on each belt's sprocket
+    /// (minus the pitch radius times the friction along the belt) and each belt sphere's
+    /// normal force.
     fn update_belt_loads(&mut self) {
         let rotation = self.pose().rotation;
         for d in &mut self.drives {
             if let Drive::Belt(b) = d {
                 b.load_torque_nm = 0.0;
+                b.normal_n.fill(0.0);
             }
         }
         for (i, c) in self.data.contact().iter().enumerate() {
@@ -293,14 +338,15 @@ impl MujocoPhysics {
                 let Drive::Belt(b) = d else { continue };
                 // mj_contactForce: the force in the contact frame (normal from geom1 to
                 // geom2, then two tangents) that geom1 exerts on geom2.
-                let sign = if b.geoms.contains(&g2) {
-                    1.0
-                } else if b.geoms.contains(&g1) {
-                    -1.0
+                let (sign, k) = if let Some(k) = b.geoms.iter().position(|&g| g == g2) {
+                    (1.0, k)
+                } else if let Some(k) = b.geoms.iter().position(|&g| g == g1) {
+                    (-1.0, k)
                 } else {
                     continue;
                 };
                 let f = self.data.contact_force(i);
+                b.normal_n[k] += f[0].max(0.0);
                 let frame = &c.frame;
                 let on_belt = Vector3::new(
                     f[0] * frame[0] + f[1] * frame[3] + f[2] * frame[6],
@@ -321,7 +367,7 @@ impl Physics for MujocoPhysics {
     fn step(&mut self, speed_refs_radps: &[f64; MAX_DRIVE_JOINTS]) {
         let dt = self.dt;
         // Sprockets: one step of their drive trains; the belts' surfaces move backwards at
-        // the new pitch speed.
+        // the new pitch speed. Each belt sphere's sideways friction follows its load.
         if let Some(mut spare) = self.spare.take() {
             {
                 let surface = spare.geom_surfacevel_mut();
@@ -332,6 +378,46 @@ impl Physics for MujocoPhysics {
                     for &g in &b.geoms {
                         surface[g] = [v, 0.0, 0.0, 0.0, 0.0, 0.0];
                     }
+                }
+            }
+            {
+                // Elliptic anisotropic Coulomb friction (maximum dissipation): a belt point
+                // slipping by (s_l, s_t) along and across the belt is pushed back by
+                // N·(mu1·c_l, mu2·c_t) with (c_l, c_t) = (mu1·|s_l|, mu2·|s_t|) / norm. The
+                // sideways part is the sphere hinge's dry friction, the whole the contact's
+                // isotropic coefficient, both from the slip at the start of the step.
+                let v = self.data.qvel();
+                let (lin, ang) = (
+                    self.pose().rotation.inverse() * Vector3::new(v[0], v[1], v[2]),
+                    Vector3::new(v[3], v[4], v[5]),
+                );
+                let mut hinge = Vec::new();
+                let mut contact = Vec::new();
+                for d in &self.drives {
+                    let Drive::Belt(b) = d else { continue };
+                    let across = Vector3::z().cross(&b.forward_in_body);
+                    for k in 0..b.geoms.len() {
+                        let point = lin + ang.cross(&b.centres_in_body[k]);
+                        let s_l = point.dot(&b.forward_in_body) - b.motor.speed_radps * b.radius_m;
+                        let s_t = point.dot(&across);
+                        let (a, t) = ((b.mu[0] * s_l).abs(), (b.mu[1] * s_t).abs());
+                        let e2 = (b.mu[1] * SLIP_SCALE_MPS).powi(2);
+                        let norm = (a * a + t * t + e2).sqrt();
+                        let (c_l, c_t) = ((a * a + e2).sqrt() / norm, (t * t + e2).sqrt() / norm);
+                        hinge.push((
+                            b.roll_dofs[k],
+                            b.mu[1] * c_t * b.normal_n[k] * b.sphere_radius_m,
+                        ));
+                        contact.push((b.geoms[k], (b.mu[0] * c_l).hypot(b.mu[1] * c_t)));
+                    }
+                }
+                let friction = spare.dof_frictionloss_mut();
+                for (dof, f) in hinge {
+                    friction[dof] = f;
+                }
+                let friction = spare.geom_friction_mut();
+                for (g, mu) in contact {
+                    friction[g][0] = mu;
                 }
             }
             self.spare = Some(self.data.swap_model(spare));

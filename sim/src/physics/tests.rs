@@ -184,8 +184,8 @@ fn mecanum_pure_strafe_moves_sideways_without_turning() {
 
 /// Runs the drive controller (yaw-rate loop at 50 Hz) on a twist command for `seconds`,
 /// returning the measured yaw rates (body z, per 20 ms tick).
-fn drive<S: Surface>(
-    p: &mut RapierPhysics<S>,
+pub(super) fn drive<P: Physics>(
+    p: &mut P,
     c: &mut DriveController,
     cmd: &TwistCommand,
     seconds: f64,

@@ -523,12 +523,9 @@ fn a_robot_driving_into_a_post_is_stuck_and_the_collision_recorded() {
     assert!(at_s > 3.0 && at_s < 30.0, "{at_s}");
 }
 
-/// The rover drives every route type on MuJoCo; the tracked robot the waypoint routes.
-/// On MuJoCo's isotropic contact friction the tracks turn about 40 % slower for the same
-/// track speeds than on rapier's (mu1 = 0.8 along, mu2 = 0.5 across), and in this small
-/// vineyard's tight headland turns the tracked robot swings 1.5 m wide into a post and
-/// gets stuck (row loop, serpentine; measured). In the default vineyard it completes row
-/// loops (`tests/mujoco.rs`, `slope-row-mujoco`).
+/// Both robots drive every route type on MuJoCo, through this small vineyard's tight
+/// headland turns, on rough ground (2 cm), within 0.3 m of the route (on rapier: 0.15 m
+/// for the tracks, 0.25 m for the rover; measured on MuJoCo: 0.25 m and 0.27 m).
 #[cfg(feature = "mujoco")]
 #[test]
 fn every_route_type_on_mujoco() {
@@ -541,9 +538,6 @@ fn every_route_type_on_mujoco() {
     let obstacles = obstacles_of(&w);
     for (name, route) in every_route_type(&w) {
         for robot in ["tracked-sensorbox", "mecanum-rover"] {
-            if robot == "tracked-sensorbox" && matches!(name, "row_loop" | "serpentine") {
-                continue;
-            }
             let r = RobotModel::builtin(robot).unwrap();
             let mut m = Dynamic::new(
                 &motion,
@@ -560,7 +554,7 @@ fn every_route_type_on_mujoco() {
             )
             .unwrap();
             let d = drive_route(&mut m, &route);
-            assert_drove(&format!("MuJoCo {robot} {name}"), &route, &d, 0.6, 0.15);
+            assert_drove(&format!("MuJoCo {robot} {name}"), &route, &d, 0.3, 0.15);
         }
     }
 }
