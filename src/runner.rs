@@ -140,8 +140,8 @@ pub struct MotionComparison {
 }
 
 /// Drives `motion` along its route like the main loop (ground-truth samples at
-/// `gt_rate_hz` from `start` until it finishes or a stop of `stops` passes) and compares
-/// the result with the run's `truth`.
+/// `gt_rate_hz` from `start` until it finishes, `hard_stop` passes or its own safety
+/// limit does) and compares the result with the run's `truth`.
 fn drive_comparison(
     model: MotionModelKind,
     motion: &mut dyn MotionModel,
@@ -396,7 +396,9 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
                 .field_error(
                     &field,
                     format!(
-                        "expected motion models other than `motion.model` and each once, found {kind:?} again"
+                        "expected motion models other than `motion.model` (\"{}\"), each once; found \"{}\" twice",
+                        s.motion.model.name(),
+                        kind.name()
                     ),
                 )
                 .into());
