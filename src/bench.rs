@@ -410,7 +410,9 @@ pub fn shaded_frames_per_second(
 /// The SLAM feature front-end ([`crate::slam::bench`]) on a rendered, rectified 752×480
 /// stereo pair (93° HFOV, 12 cm baseline: the rover's ZED 2i-like cameras) at the first
 /// of [`bench_views`]: ORB extraction of one image, stereo matching of the pair, and the
-/// whole pair with the two extractions on two rayon tasks; best of `repeats`.
+/// whole pair with the two extractions on two rayon tasks; best of `repeats`. Also the
+/// tracking's motion-only BA on synthetic observations
+/// ([`crate::slam::bench::time_motion_ba`]).
 pub fn slam_feature_figures(
     renderer: &vinebench_sim::render::shade::Renderer,
     repeats: usize,
@@ -443,6 +445,7 @@ pub fn slam_feature_figures(
         repeats * 10,
     )
     .map_err(|e| BenchError::Setup(e.to_string()))?;
+    let (motion_ba_ms, motion_ba_inliers) = crate::slam::bench::time_motion_ba(200, repeats * 10);
     let fig = |name, value, unit, target| Figure {
         name,
         value,
@@ -450,6 +453,18 @@ pub fn slam_feature_figures(
         target,
     };
     Ok(vec![
+        fig(
+            "slam tracking: motion-only BA of the rig pose, 200 observations from 2 cameras (a quarter wrong), 4 rounds",
+            motion_ba_ms,
+            "ms",
+            None,
+        ),
+        fig(
+            "slam tracking: inliers of those 200 (150 right)",
+            motion_ba_inliers as f64,
+            "",
+            None,
+        ),
         fig(
             "slam features: ORB extraction (pyramid, adaptive FAST, SSC, BRIEF) of one 752x480 image, one thread",
             t.extract_ms_per_image,

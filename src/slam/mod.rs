@@ -6,7 +6,7 @@
 //! whole SLAM: features, stereo initialisation, tracking with motion-only bundle
 //! adjustment over every camera of the rig, keyframes and local BA, AprilTag loop closure
 //! with global BA, and the single-camera and bag-of-words baselines. For now it holds the
-//! **feature front-end**, in data-flow order:
+//! **feature front-end**, in data-flow order, and the tracking's pose optimizer:
 //!
 //! - [`image`]: [`GrayImage`] from an `ImageMsg`, the scale [`Pyramid`], the 7×7 blur.
 //! - [`fast`]: FAST-9 with a score, non-maximum suppression, per-cell adaptive threshold.
@@ -15,6 +15,9 @@
 //! - [`stereo`]: left/right matching along rectified rows, subpixel, depth below 40 b.
 //! - [`grid`]: keypoints bucketed for projection search.
 //! - [`frontend`]: all of it for one stereo pair ([`StereoFrontEnd`]).
+//! - [`motion_ba`]: motion-only bundle adjustment of the rig pose over the observations
+//!   of every camera through the rig extrinsics (eqs. 1-3), Huber kernel, level weights,
+//!   ORB-SLAM-style outlier rounds.
 //! - [`bench`](mod@bench): timing of the front-end for `vinebench bench`.
 //!
 //! ```
@@ -32,6 +35,7 @@ pub mod fast;
 pub mod frontend;
 pub mod grid;
 pub mod image;
+pub mod motion_ba;
 pub mod orb;
 pub mod ssc;
 pub mod stereo;
