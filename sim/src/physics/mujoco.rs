@@ -121,6 +121,29 @@ struct Belt {
     load_torque_nm: f64,
 }
 
+impl Belt {
+    /// Elliptic anisotropic Coulomb friction (maximum dissipation) of belt sphere `k` for
+    /// the body's velocity (`lin`, `ang`, body frame): a belt point slipping by
+    /// `(s_l, s_t)` along and across the belt is pushed back by `N·(mu1·c_l, mu2·c_t)`,
+    /// `(c_l, c_t) = (mu1·|s_l|, mu2·|s_t|) / norm`. Returns the sideways hinge's dry
+    /// friction torque (`mu2·c_t·N·r`) and the contact's isotropic coefficient, the whole
+    /// `hypot(mu1·c_l, mu2·c_t)`.
+    fn friction(&self, k: usize, lin: &Vector3<f64>, ang: &Vector3<f64>) -> (f64, f64) {
+        let point = lin + ang.cross(&self.centres_in_body[k]);
+        let across = Vector3::z().cross(&self.forward_in_body);
+        let s_l = point.dot(&self.forward_in_body) - self.motor.speed_radps * self.radius_m;
+        let s_t = point.dot(&across);
+        let (a, t) = ((self.mu[0] * s_l).abs(), (self.mu[1] * s_t).abs());
+        let e2 = (self.mu[1] * SLIP_SCALE_MPS).powi(2);
+        let norm = (a * a + t * t + e2).sqrt();
+        let (c_l, c_t) = ((a * a + e2).sqrt() / norm, (t * t + e2).sqrt() / norm);
+        (
+            self.mu[1] * c_t * self.normal_n[k] * self.sphere_radius_m,
+            (self.mu[0] * c_l).hypot(self.mu[1] * c_t),
+        )
+    }
+}
+
 /// One drive joint.
 #[derive(Clone, Debug)]
 enum Drive {
@@ -380,44 +403,28 @@ impl Physics for MujocoPhysics {
                     }
                 }
             }
+            // Elliptic belt friction from the slip at the start of the step.
+            let v = self.data.qvel();
+            let lin = self.pose().rotation.inverse() * Vector3::new(v[0], v[1], v[2]);
+            let ang = Vector3::new(v[3], v[4], v[5]);
+            let belts = self.drives.iter().filter_map(|d| match d {
+                Drive::Belt(b) => Some(b),
+                Drive::Wheel(_) => None,
+            });
             {
-                // Elliptic anisotropic Coulomb friction (maximum dissipation): a belt point
-                // slipping by (s_l, s_t) along and across the belt is pushed back by
-                // N·(mu1·c_l, mu2·c_t) with (c_l, c_t) = (mu1·|s_l|, mu2·|s_t|) / norm. The
-                // sideways part is the sphere hinge's dry friction, the whole the contact's
-                // isotropic coefficient, both from the slip at the start of the step.
-                let v = self.data.qvel();
-                let (lin, ang) = (
-                    self.pose().rotation.inverse() * Vector3::new(v[0], v[1], v[2]),
-                    Vector3::new(v[3], v[4], v[5]),
-                );
-                let mut hinge = Vec::new();
-                let mut contact = Vec::new();
-                for d in &self.drives {
-                    let Drive::Belt(b) = d else { continue };
-                    let across = Vector3::z().cross(&b.forward_in_body);
+                let hinge = spare.dof_frictionloss_mut();
+                for b in belts.clone() {
                     for k in 0..b.geoms.len() {
-                        let point = lin + ang.cross(&b.centres_in_body[k]);
-                        let s_l = point.dot(&b.forward_in_body) - b.motor.speed_radps * b.radius_m;
-                        let s_t = point.dot(&across);
-                        let (a, t) = ((b.mu[0] * s_l).abs(), (b.mu[1] * s_t).abs());
-                        let e2 = (b.mu[1] * SLIP_SCALE_MPS).powi(2);
-                        let norm = (a * a + t * t + e2).sqrt();
-                        let (c_l, c_t) = ((a * a + e2).sqrt() / norm, (t * t + e2).sqrt() / norm);
-                        hinge.push((
-                            b.roll_dofs[k],
-                            b.mu[1] * c_t * b.normal_n[k] * b.sphere_radius_m,
-                        ));
-                        contact.push((b.geoms[k], (b.mu[0] * c_l).hypot(b.mu[1] * c_t)));
+                        hinge[b.roll_dofs[k]] = b.friction(k, &lin, &ang).0;
                     }
                 }
-                let friction = spare.dof_frictionloss_mut();
-                for (dof, f) in hinge {
-                    friction[dof] = f;
-                }
-                let friction = spare.geom_friction_mut();
-                for (g, mu) in contact {
-                    friction[g][0] = mu;
+            }
+            {
+                let contact = spare.geom_friction_mut();
+                for b in belts {
+                    for k in 0..b.geoms.len() {
+                        contact[b.geoms[k]][0] = b.friction(k, &lin, &ang).1;
+                    }
                 }
             }
             self.spare = Some(self.data.swap_model(spare));
