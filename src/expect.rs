@@ -124,6 +124,24 @@ pub const MAP_METRICS: &[(&str, &str)] = &[
     ("map_f_score_5cm", "F-score at 5 cm"),
 ];
 
+/// Metrics of the SLAM's estimate sources (`slam` and its baselines; see `[slam]` in
+/// `scenarios/defaults.toml`).
+pub const SLAM_METRICS: &[(&str, &str)] = &[
+    (
+        "tracking_losses",
+        "times the SLAM lost track (each ends when it tracks again or restarts its map)",
+    ),
+    (
+        "tracking_lost_s",
+        "total time the SLAM was lost, to the end of the run if it never recovered (s)",
+    ),
+    ("keyframes", "keyframes the SLAM inserted"),
+    (
+        "maps_started",
+        "maps the SLAM started (1 + reinitializations after losses)",
+    ),
+];
+
 /// The pseudo-source of the robot's own run (ground truth against its route).
 pub const ROBOT_SOURCE: &str = "robot";
 
@@ -380,11 +398,12 @@ fn names(list: &[(&str, &str)]) -> String {
 /// Which metrics each kind of source has, for error messages.
 fn metrics_by_kind(sources: &[&str]) -> String {
     format!(
-        "estimate sources ({}) have: {}, and when [mapper] maps them: {}; `{ROBOT_SOURCE}` \
-         (the robot's own run) has: {}",
+        "estimate sources ({}) have: {}, and when [mapper] maps them: {}; SLAM sources \
+         also have: {}; `{ROBOT_SOURCE}` (the robot's own run) has: {}",
         sources.join(", "),
         names(METRICS),
         names(MAP_METRICS),
+        names(SLAM_METRICS),
         names(ROBOT_METRICS)
     )
 }
@@ -395,7 +414,11 @@ fn parse_ref(s: &str, sources: &[&str]) -> Result<MetricRef, ExpectationError> {
             "expected `<metric>.<source>` such as `ate_rmse_m.eif` or `collisions.robot`, found {s:?}"
         ))
     })?;
-    let estimate_metric = METRICS.iter().chain(MAP_METRICS).any(|(m, _)| *m == metric);
+    let estimate_metric = METRICS
+        .iter()
+        .chain(MAP_METRICS)
+        .chain(SLAM_METRICS)
+        .any(|(m, _)| *m == metric);
     let robot_metric = ROBOT_METRICS.iter().any(|(m, _)| *m == metric);
     if !estimate_metric && !robot_metric {
         return Err(ExpectationError(format!(

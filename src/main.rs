@@ -336,7 +336,7 @@ fn interrupt_flag() -> Arc<AtomicBool> {
 fn print_summary(o: &runner::RunOutcome) {
     let r = &o.report;
     println!(
-        "{}: {:.0} s simulated in {:.2} s ({:.0}x real time), {:.1} m driven",
+        "{}: {:.0} s simulated in {:.2} s ({:.2}x real time), {:.1} m driven",
         r.scenario.name,
         r.run.duration_s,
         o.wall_s,
@@ -344,12 +344,12 @@ fn print_summary(o: &runner::RunOutcome) {
         r.run.distance_m
     );
     println!(
-        "{:<16} {:>9} {:>9} {:>9} {:>9} {:>9} {:>12}",
+        "{:<18} {:>9} {:>9} {:>9} {:>9} {:>9} {:>12}",
         "source", "D [m]", "D_EN [m]", "D_U [m]", "σ_U [m]", "ATE [m]", "ATE al. [m]"
     );
     if let Some(g) = &r.ground_truth {
         println!(
-            "{:<16} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9} {:>12}",
+            "{:<18} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9} {:>12}",
             "ground truth", g.d_m, g.d_en_m, g.d_u_m, g.sigma_u_m, "", ""
         );
     }
@@ -361,7 +361,7 @@ fn print_summary(o: &runner::RunOutcome) {
                 .unwrap_or_else(|| "–".into())
         };
         println!(
-            "{:<16} {:>9} {:>9} {:>9} {:>9} {:>9} {:>12}",
+            "{:<18} {:>9} {:>9} {:>9} {:>9} {:>9} {:>12}",
             s.name,
             m("d_m"),
             m("d_en_m"),
@@ -373,7 +373,7 @@ fn print_summary(o: &runner::RunOutcome) {
     }
     let robot = &r.robot;
     println!(
-        "{:<16} {}; {} collision(s); max cross-track {:.3} m, heading error {:.1}°, tilt {:.1}°",
+        "{:<18} {}; {} collision(s); max cross-track {:.3} m, heading error {:.1}°, tilt {:.1}°",
         "robot",
         robot.outcome,
         robot.collisions.len(),

@@ -41,6 +41,9 @@ pub struct Report {
     /// mapping is off).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub maps: Vec<crate::mapping::MapReport>,
+    /// The SLAM metrics of each SLAM source (absent when `[slam]` is off).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub slam: BTreeMap<String, BTreeMap<String, f64>>,
     /// Expectation outcomes, in file order.
     pub expectations: Vec<ExpectationResult>,
     /// True when every expectation holds.
@@ -325,6 +328,8 @@ pub struct SourceReport {
     pub used: BTreeMap<String, u64>,
     /// Messages not used, by reason.
     pub rejected: BTreeMap<String, u64>,
+    /// Other counted events (`imu_gap_bridged`; the SLAM's keyframes, tracking losses).
+    pub events: BTreeMap<String, u64>,
     /// Notes (initialisation and the like).
     pub notes: Vec<String>,
 }
@@ -342,6 +347,7 @@ impl Report {
             sources,
             robot,
             maps,
+            slam,
         } = scores;
         let sources = sim
             .estimates
@@ -355,6 +361,7 @@ impl Report {
                     score,
                     used: stats.used.clone(),
                     rejected: stats.rejected.clone(),
+                    events: stats.events.clone(),
                     notes: stats.notes.clone(),
                 }
             })
@@ -384,6 +391,7 @@ impl Report {
             robot,
             sources,
             maps,
+            slam: slam.into_iter().collect(),
             expectations,
             passed,
         }
@@ -502,6 +510,9 @@ impl Report {
         if !self.maps.is_empty() {
             md.push_str(&maps_markdown(&self.maps));
         }
+        if !self.slam.is_empty() {
+            md.push_str(&slam_markdown(&self.slam));
+        }
 
         let _ = writeln!(
             md,
@@ -528,6 +539,9 @@ impl Report {
                 fmt_counts(&src.used),
                 fmt_counts(&src.rejected)
             );
+            if !src.events.is_empty() {
+                let _ = writeln!(md, "- events: {}", fmt_counts(&src.events));
+            }
             for n in &src.notes {
                 let _ = writeln!(md, "- {n}");
             }
@@ -549,6 +563,27 @@ impl Report {
         );
         md
     }
+}
+
+/// The `## Visual SLAM` section: one row per SLAM source.
+fn slam_markdown(slam: &BTreeMap<String, BTreeMap<String, f64>>) -> String {
+    let mut md = String::from(
+        "\n## Visual SLAM (Kokas et al.)\n\n\
+         | source | tracking losses | time lost [s] | keyframes | maps started |\n\
+         |---|---:|---:|---:|---:|\n",
+    );
+    let get = |m: &BTreeMap<String, f64>, k: &str| m.get(k).copied().unwrap_or(f64::NAN);
+    for (source, m) in slam {
+        let _ = writeln!(
+            md,
+            "| {source} | {} | {:.2} | {} | {} |",
+            get(m, "tracking_losses"),
+            get(m, "tracking_lost_s"),
+            get(m, "keyframes"),
+            get(m, "maps_started"),
+        );
+    }
+    md
 }
 
 /// The `## Maps` section: one row per mapped source.

@@ -53,6 +53,9 @@ pub enum RunError {
     /// The mapper could not build or write a map.
     #[error("mapper: {0}")]
     Mapper(#[from] crate::mapper::MapperError),
+    /// The visual SLAM could not use its input.
+    #[error("visual SLAM: {0}")]
+    Slam(#[from] crate::slam::SlamError),
     /// The run was interrupted (Ctrl-C); the recording so far is finalized.
     #[error("interrupted after {simulated_s:.1} s simulated")]
     Interrupted {
@@ -82,8 +85,12 @@ pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RunError + '
 pub struct Simulation {
     /// Ground truth of the body frame at the scenario's ground-truth rate.
     pub truth: Trajectory,
-    /// One output per estimator, in the order of `[estimators] run`.
+    /// One output per estimator, in the order of `[estimators] run`, then `slam` when
+    /// `[slam]` runs.
     pub estimates: Vec<EstimatorOutput>,
+    /// What the visual SLAM and its baselines produced (their trajectories are also in
+    /// `estimates`).
+    pub slam: Vec<crate::slam::SlamOutput>,
     /// Counters of the estimation stage (late and invalid messages).
     pub stage: StageStats,
     /// Messages produced, per topic.
@@ -229,6 +236,8 @@ pub struct Scores {
     pub robot: RobotReport,
     /// One map score per mapped source (empty when `[mapper]` is off).
     pub maps: Vec<crate::mapping::MapReport>,
+    /// The SLAM metrics of each SLAM source (empty when `[slam]` is off).
+    pub slam: Vec<(String, BTreeMap<String, f64>)>,
 }
 
 impl Scores {
@@ -236,6 +245,16 @@ impl Scores {
     pub fn metric(&self, metric: &str, source: &str) -> Option<f64> {
         if source == ROBOT_SOURCE {
             return self.robot.metric(metric);
+        }
+        if crate::expect::SLAM_METRICS
+            .iter()
+            .any(|(m, _)| *m == metric)
+        {
+            return self
+                .slam
+                .iter()
+                .find(|(n, _)| n == source)
+                .and_then(|(_, m)| m.get(metric).copied());
         }
         if crate::mapping::is_map_metric(metric) {
             return self
@@ -353,6 +372,8 @@ pub struct Setup {
     pub mapping: Option<crate::mapping::MappingStage>,
     /// The other motion models of `motion.compare_with`, at rest at the start.
     pub comparisons: Vec<(MotionModelKind, Box<dyn MotionModel>)>,
+    /// The visual SLAM of `[slam]` and its baselines (empty when it is off).
+    pub slam: Vec<crate::slam::VisualSlam>,
 }
 
 /// Builds the world, robot, route, motion model, sensors and estimators of a scenario;
@@ -457,6 +478,7 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         })
         .map_err(estimator_error)?;
     let mapping = crate::mapping::MappingStage::from_scenario(sc, &robot.static_transforms)?;
+    let slam = slam_from_scenario(sc, &robot.static_transforms)?;
     Ok(Setup {
         world,
         robot,
@@ -470,7 +492,50 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         stop: None,
         mapping,
         comparisons,
+        slam,
     })
+}
+
+/// The visual SLAM of `[slam]` and its baselines (none when off); its cameras must be
+/// stereo cameras of `[[sensors.cameras]]` (located errors).
+fn slam_from_scenario(
+    sc: &LoadedScenario,
+    static_transforms: &vinebench_msgs::StaticTransforms,
+) -> Result<Vec<crate::slam::VisualSlam>, RunError> {
+    let s = &sc.scenario;
+    if !s.slam.enabled {
+        return Ok(Vec::new());
+    }
+    for (i, name) in s.slam.cameras.iter().enumerate() {
+        let stereo = s
+            .sensors
+            .cameras
+            .iter()
+            .find(|c| &c.name == name)
+            .map(|c| c.right_frame.is_some());
+        if stereo != Some(true) {
+            let found = match stereo {
+                None => "no camera of that name",
+                Some(_) => "a camera without `right_frame`",
+            };
+            return Err(sc
+                .field_error(
+                    &format!("slam.cameras[{i}]"),
+                    format!(
+                        "expected the name of a stereo camera of [[sensors.cameras]], found \"{name}\" ({found})"
+                    ),
+                )
+                .into());
+        }
+    }
+    s.slam
+        .runs()
+        .into_iter()
+        .map(|(source, cfg)| {
+            crate::slam::VisualSlam::new(source, cfg, static_transforms.clone())
+                .map_err(|e| sc.field_error("slam", e.to_string()).into())
+        })
+        .collect()
 }
 
 /// The motion model `kind` of a scenario, on its route from its start; `field` names the
@@ -572,6 +637,7 @@ pub fn simulate_setup(
         mut mapping,
         renderer,
         mut comparisons,
+        mut slam,
         ..
     } = built;
     let mut png = png_dir.map(|d| crate::images::PngDump::new(&d, s.render.debug_png_every));
@@ -668,6 +734,9 @@ pub fn simulate_setup(
                 if let Some(m) = &mut mapping {
                     m.push(&p.tm.msg, &estimators)?;
                 }
+                for v in &mut slam {
+                    v.push(&p.tm.msg)?;
+                }
                 // Written in delivery order: a replay restores it exactly.
                 if let Some(rec) = &mut recorder {
                     rec.send(RecordItem::Message(p.tm));
@@ -688,12 +757,17 @@ pub fn simulate_setup(
         if let Some(m) = &mut mapping {
             m.push(&p.tm.msg, &estimators)?;
         }
+        for v in &mut slam {
+            v.push(&p.tm.msg)?;
+        }
         if let Some(rec) = &mut recorder {
             rec.send(RecordItem::Message(p.tm));
         }
     }
     let out = estimators.finish();
-    let (estimates, stage) = (out.estimators, out.stage);
+    let (mut estimates, stage) = (out.estimators, out.stage);
+    let slam: Vec<crate::slam::SlamOutput> = slam.into_iter().map(|v| v.finish()).collect();
+    estimates.extend(slam.iter().map(crate::slam::estimator_output));
     let mapping = match (mapping, renderer) {
         (Some(m), Some(truth)) => Some(m.finish(&estimates, truth)?),
         _ => None,
@@ -717,6 +791,7 @@ pub fn simulate_setup(
         comparisons,
         truth,
         estimates,
+        slam,
         stage,
         messages,
         world_digest: world.digest(),
@@ -822,6 +897,17 @@ pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Scores {
             .as_ref()
             .map(crate::mapping::score)
             .unwrap_or_default(),
+        slam: sim
+            .slam
+            .iter()
+            .map(|o| {
+                let metrics = crate::expect::SLAM_METRICS
+                    .iter()
+                    .filter_map(|(m, _)| o.metric(m).map(|v| (m.to_string(), v)))
+                    .collect();
+                (o.source.to_string(), metrics)
+            })
+            .collect(),
     }
 }
 
@@ -902,6 +988,12 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
     if let Some(m) = &sim.mapping {
         // Part of wall_s: integrating frames during the run and finishing the maps.
         timing["mapping_s"] = serde_json::json!(m.wall_s);
+    }
+    for o in &sim.slam {
+        // Part of wall_s: feature extraction, tracking and local BA of each SLAM.
+        timing[format!("{}_s", o.source)] = serde_json::json!(o.wall_s);
+        timing[format!("{}_frames_per_s", o.source)] =
+            serde_json::json!(o.stats.frames as f64 / o.wall_s.max(1e-9));
     }
     let tp = dir.join("timing.json");
     std::fs::write(&tp, format!("{timing:#}\n")).map_err(io_err(&tp))?;

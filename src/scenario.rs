@@ -70,6 +70,8 @@ pub struct Scenario {
     pub recording: crate::recording::RecordingParams,
     /// `[mapper]`.
     pub mapper: crate::mapping::MappingParams,
+    /// `[slam]`: the visual SLAM (an estimate source named `slam`).
+    pub slam: crate::slam::SlamConfig,
     /// Expectations, in the expectation language (see [`crate::expect`]).
     pub expect: Vec<String>,
 }
@@ -302,11 +304,47 @@ impl LoadedScenario {
                 ));
             }
         }
-        let sources: Vec<&'static str> = e.run.iter().map(|k| k.name()).collect();
+        if let Err(e) = s.slam.validate() {
+            return Err(self.field_error("slam", e.0));
+        }
+        let mut sources: Vec<&'static str> = e.run.iter().map(|k| k.name()).collect();
+        let slam_sources: Vec<&'static str> = if s.slam.enabled {
+            s.slam.runs().iter().map(|r| r.0).collect()
+        } else {
+            Vec::new()
+        };
+        sources.extend(&slam_sources);
         let mut parsed = Vec::with_capacity(s.expect.len());
         for (i, text) in s.expect.iter().enumerate() {
             match Expectation::parse(text, &sources) {
-                Ok(x) => parsed.push(x),
+                Ok(x) => {
+                    let refs = std::iter::once(&x.lhs).chain(match &x.rhs {
+                        crate::expect::Rhs::Metric { metric, .. } => Some(metric),
+                        crate::expect::Rhs::Number(_) => None,
+                    });
+                    for r in refs {
+                        let slam_metric = crate::expect::SLAM_METRICS
+                            .iter()
+                            .any(|(m, _)| *m == r.metric);
+                        if slam_metric && !slam_sources.contains(&r.source.as_str()) {
+                            return Err(self.field_error(
+                                &format!("expect[{i}]"),
+                                format!(
+                                    "`{}` is a metric of the SLAM's sources ({}), not of `{}`; \
+                                     enable [slam] (and its baselines) to use it",
+                                    r.metric,
+                                    if slam_sources.is_empty() {
+                                        "none: [slam] is off".to_string()
+                                    } else {
+                                        slam_sources.join(", ")
+                                    },
+                                    r.source
+                                ),
+                            ));
+                        }
+                    }
+                    parsed.push(x)
+                }
                 Err(ExpectationError(msg)) => {
                     return Err(self.field_error(&format!("expect[{i}]"), msg));
                 }
@@ -459,6 +497,33 @@ mod tests {
             e.contains("spacing_m"),
             "should list the expected keys: {e}"
         );
+    }
+
+    #[test]
+    fn slam_settings_and_metrics_are_checked() {
+        let e = err("[slam]\nenabled = true\nmax_camera_offset_s = -1.0\n");
+        assert!(
+            e.contains("`slam`") && e.contains("max_camera_offset_s"),
+            "{e}"
+        );
+        let e = err("[slam.tracking]\nmin_tracked = 2\n");
+        assert!(e.contains("tracking.min_tracked"), "{e}");
+        // SLAM metrics only for the SLAM's sources, and only when it runs.
+        let e = err("expect = [\"tracking_losses.eif <= 0\"]\n");
+        assert!(
+            e.contains("`expect[0]`") && e.contains("[slam] is off"),
+            "{e}"
+        );
+        let ok = LoadedScenario::from_str(
+            "expect = [\"tracking_losses.slam_single_camera >= 1\", \"ate_rmse_aligned_m.slam < 0.1\"]\n\
+             [slam]\nenabled = true\nbaselines = [\"single_camera\"]\n",
+            "x.toml",
+        )
+        .unwrap();
+        assert_eq!(ok.expectations.len(), 2);
+        let e =
+            err("expect = [\"tracking_losses.slam_single_camera >= 1\"]\n[slam]\nenabled = true\n");
+        assert!(e.contains("unknown source `slam_single_camera`"), "{e}");
     }
 
     #[test]

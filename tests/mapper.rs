@@ -896,6 +896,7 @@ fn a_mapping_run_writes_map_mesh_model_and_scores() {
     let scores = vinebench::runner::Scores {
         sources: Vec::new(),
         robot: out.report.robot.clone(),
+        slam: Vec::new(),
         maps: out.report.maps.clone(),
     };
     let f = scores.metric("map_f_score_5cm", "eif").unwrap();

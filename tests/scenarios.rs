@@ -79,6 +79,14 @@ fn rover_occluder_meets_its_expectations() {
     check("rover-occluder.toml");
 }
 
+/// The visual SLAM's CI scenario: the two-pair rig keeps tracking past the box that
+/// blinds the front pair, the single-camera baseline loses track (about 4 minutes on 2
+/// cores, mostly rendering).
+#[test]
+fn csl_box_occluder_meets_its_expectations() {
+    check("csl-box-occluder.toml");
+}
+
 #[test]
 fn the_defaults_run_as_a_scenario() {
     check("defaults.toml");

@@ -8,7 +8,7 @@
 //! of a threshold-`t` pass holds every stricter pass too.
 
 use super::image::GrayImage;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 /// The circle, clockwise from the top, as `(dx, dy)` (OpenCV's order).
 pub const CIRCLE: [(i32, i32); 16] = [
@@ -359,7 +359,7 @@ fn count_corners(scores: &[u8], width: usize, rect: [usize; 4]) -> usize {
 }
 
 /// The adaptive, per-cell FAST detection.
-#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FastConfig {
     /// Threshold of the first pass over every cell (ORB-SLAM's `iniThFAST`).

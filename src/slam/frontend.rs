@@ -6,10 +6,10 @@ use super::grid::{FeatureGrid, GridConfig};
 use super::image::GrayImage;
 use super::orb::{Features, OrbConfig, OrbExtractor};
 use super::stereo::{StereoCamera, StereoConfig, StereoMatcher, StereoMatches};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 /// Front-end settings (`[slam.features]`-style table; every key optional).
-#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FrontEndConfig {
     /// ORB extraction (the same for both images).

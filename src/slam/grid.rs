@@ -7,10 +7,10 @@
 
 use super::orb::KeyPoint;
 use super::{ConfigError, check};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 /// Grid size.
-#[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct GridConfig {
     /// Cells across (ORB-SLAM's `FRAME_GRID_COLS`).

@@ -18,6 +18,8 @@
 //! - [`motion_ba`]: motion-only bundle adjustment of the rig pose over the observations
 //!   of every camera through the rig extrinsics (eqs. 1-3), Huber kernel, level weights,
 //!   ORB-SLAM-style outlier rounds.
+//! - [`bundle`]: local and global bundle adjustment of keyframe poses and landmarks
+//!   (eqs. 4-5), mono and stereo residuals, sparse Schur-complement Levenberg-Marquardt.
 //! - [`bench`](mod@bench): timing of the front-end for `vinebench bench`.
 //!
 //! ```
@@ -31,20 +33,26 @@
 //! ```
 
 pub mod bench;
+pub mod bundle;
 pub mod fast;
 pub mod frontend;
 pub mod grid;
 pub mod image;
+pub mod map;
 pub mod motion_ba;
 pub mod orb;
 pub mod ssc;
 pub mod stereo;
+pub mod system;
+pub mod tracking;
 
 pub use frontend::{FrontEndConfig, StereoFrame, StereoFrontEnd};
 pub use grid::{FeatureGrid, GridConfig};
 pub use image::{GrayImage, ImageError, Pyramid};
 pub use orb::{Descriptor, Features, KeyPoint, OrbConfig, OrbExtractor, hamming};
 pub use stereo::{StereoCamera, StereoConfig, StereoMatcher, StereoMatches};
+pub use system::{SLAM_SOURCE, SlamBaseline, SlamConfig, SlamError, SlamOutput, VisualSlam};
+pub use tracking::{Tracker, TrackingConfig, TrackingLoss, TrackingState};
 
 use thiserror::Error;
 
@@ -59,5 +67,45 @@ fn check(ok: bool, what: &str) -> Result<(), ConfigError> {
         Ok(())
     } else {
         Err(ConfigError(what.to_string()))
+    }
+}
+
+/// A SLAM's trajectory as an estimate source (`slam`, or a baseline's), with its counters (frames,
+/// keyframes, maps started, tracking losses) and every loss's time in the notes.
+pub fn estimator_output(out: &SlamOutput) -> crate::estimator::EstimatorOutput {
+    let mut stats = crate::estimator::EstimatorStats::default();
+    for (camera, n) in &out.pairs {
+        stats
+            .used
+            .insert(format!("stereo_pair/{camera}"), *n as u64);
+    }
+    let s = &out.stats;
+    for (k, v) in [
+        ("frames", s.frames),
+        ("frames_tracked", s.tracked),
+        ("keyframes", s.keyframes),
+        ("maps_started", s.initializations),
+        ("tracking_losses", out.losses.len()),
+        ("landmarks_culled", s.culled),
+        ("local_ba_runs", s.local_ba_runs),
+        ("local_ba_outliers", s.local_ba_outliers),
+        ("landmarks_at_end", out.landmarks),
+    ] {
+        stats.events.insert(k.to_string(), v as u64);
+    }
+    for l in &out.losses {
+        stats.notes.push(match l.end {
+            Some(end) => format!(
+                "tracking lost at {} for {:.2} s",
+                l.start,
+                (end - l.start).as_secs_f64()
+            ),
+            None => format!("tracking lost at {} until the end", l.start),
+        });
+    }
+    crate::estimator::EstimatorOutput {
+        name: out.source,
+        trajectory: out.trajectory.clone(),
+        stats,
     }
 }

@@ -16,7 +16,7 @@ use super::fast::{Corner, FastConfig, FastDetector};
 use super::image::{BlurScratch, GrayImage, Pyramid, gaussian_blur7};
 use super::ssc::{SscScratch, ssc};
 use super::{ConfigError, check};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use std::sync::OnceLock;
 
 /// Radius of the orientation patch, px (ORB's `HALF_PATCH_SIZE`).
@@ -103,7 +103,7 @@ impl Features {
 }
 
 /// ORB extraction settings.
-#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OrbConfig {
     /// Keypoints wanted per image across all levels (SSC keeps about this many).

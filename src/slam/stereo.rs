@@ -14,7 +14,7 @@
 use super::image::Pyramid;
 use super::orb::{Features, hamming};
 use super::{ConfigError, check};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use vinebench_msgs::CameraInfoMsg;
 
 /// Geometry of a rectified stereo pair.
@@ -41,7 +41,7 @@ impl StereoCamera {
 }
 
 /// Stereo matching settings.
-#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct StereoConfig {
     /// A descriptor match is tried only when its Hamming distance is below this

@@ -1,0 +1,621 @@
+//! The SLAM as a message consumer: stereo image and `CameraInfo` messages in (plus
+//! `/tf_static`), a trajectory, tracking losses and counters out. The same code runs on
+//! a live simulation and on a recording.
+//!
+//! Each configured camera `<name>` publishes `/<name>/left/image_rect_color`,
+//! `/<name>/right/image_rect_color` and their `camera_info` (the ZED and the simulator's
+//! convention). A pair is complete when both images of one stamp have arrived; its
+//! features are extracted at once ([`StereoFrontEnd`]). Cameras run free, so a **rig
+//! frame** is formed whenever the *primary* camera (the first listed) completes a pair:
+//! it takes the latest unused pair of every other camera stamped within
+//! `max_camera_offset_s` and the tracker accounts for the time offsets
+//! ([`super::tracking`]). Messages are processed in the order given, so a run and its
+//! replay produce the same trajectory.
+
+use super::frontend::{FrontEndConfig, StereoFrame, StereoFrontEnd};
+use super::image::{GrayImage, ImageError};
+use super::motion_ba::RigCamera;
+use super::tracking::{
+    CameraInput, FrameResult, Tracker, TrackerCamera, TrackerStats, TrackingConfig, TrackingLoss,
+};
+use super::{ConfigError, check};
+use serde::{Deserialize, Serialize};
+use vinebench_msgs::{
+    CameraInfoMsg, ImageMsg, Message, Nanos, PoseSample, StaticTransforms, Trajectory,
+};
+
+/// `[slam]` of a scenario (every key documented in `scenarios/defaults.toml`).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SlamConfig {
+    /// Run the SLAM.
+    pub enabled: bool,
+    /// Stereo cameras by name; the first is the primary (its pairs make rig frames).
+    pub cameras: Vec<String>,
+    /// Pairs of other cameras stamped further than this from the primary's are not
+    /// used with it, s.
+    pub max_camera_offset_s: f64,
+    /// Feature extraction and stereo matching.
+    pub features: FrontEndConfig,
+    /// Tracking and local mapping.
+    pub tracking: TrackingConfig,
+    /// Baselines run on the same messages, each an estimate source of its own.
+    pub baselines: Vec<SlamBaseline>,
+}
+
+/// A baseline configuration of the same SLAM (the paper's comparisons).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SlamBaseline {
+    /// Only the first camera of `slam.cameras` (ORB-SLAM3-like stereo; source
+    /// `slam_single_camera`).
+    SingleCamera,
+}
+
+impl SlamBaseline {
+    /// The estimate source it produces.
+    pub fn source(self) -> &'static str {
+        match self {
+            SlamBaseline::SingleCamera => "slam_single_camera",
+        }
+    }
+
+    /// `cfg` turned into this baseline.
+    pub fn config(self, cfg: &SlamConfig) -> SlamConfig {
+        match self {
+            SlamBaseline::SingleCamera => SlamConfig {
+                cameras: cfg.cameras.iter().take(1).cloned().collect(),
+                baselines: Vec::new(),
+                ..cfg.clone()
+            },
+        }
+    }
+}
+
+/// The estimate source of the SLAM itself.
+pub const SLAM_SOURCE: &str = "slam";
+
+impl Default for SlamConfig {
+    fn default() -> Self {
+        SlamConfig {
+            enabled: false,
+            cameras: vec!["front".to_string(), "rear".to_string()],
+            max_camera_offset_s: 0.1,
+            features: FrontEndConfig::default(),
+            tracking: TrackingConfig::default(),
+            baselines: Vec::new(),
+        }
+    }
+}
+
+impl SlamConfig {
+    /// Checks every range.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        check(
+            !self.cameras.is_empty(),
+            "slam.cameras must name at least one stereo camera",
+        )?;
+        for (i, a) in self.cameras.iter().enumerate() {
+            check(
+                !self.cameras[..i].contains(a),
+                "slam.cameras must not name a camera twice",
+            )?;
+        }
+        check(
+            self.max_camera_offset_s.is_finite() && self.max_camera_offset_s >= 0.0,
+            "slam.max_camera_offset_s must be a non-negative number",
+        )?;
+        for (i, b) in self.baselines.iter().enumerate() {
+            check(
+                !self.baselines[..i].contains(b),
+                "slam.baselines must not name a baseline twice",
+            )?;
+        }
+        self.features.validate()?;
+        self.tracking.validate()
+    }
+
+    /// Every SLAM a scenario runs: the SLAM itself, then each baseline, with the source
+    /// names of their trajectories.
+    pub fn runs(&self) -> Vec<(&'static str, SlamConfig)> {
+        std::iter::once((SLAM_SOURCE, self.clone()))
+            .chain(self.baselines.iter().map(|b| (b.source(), b.config(self))))
+            .collect()
+    }
+}
+
+/// Why the SLAM could not use its input.
+#[derive(Debug, thiserror::Error)]
+pub enum SlamError {
+    /// An image that cannot be read.
+    #[error("SLAM input {topic} at {stamp}: {source}")]
+    Image {
+        /// Its topic.
+        topic: String,
+        /// Its stamp.
+        stamp: Nanos,
+        /// What is wrong.
+        source: ImageError,
+    },
+    /// A `CameraInfo` that does not describe a rectified stereo camera.
+    #[error("SLAM input {topic} at {stamp}: {problem}")]
+    CameraInfo {
+        /// Its topic.
+        topic: String,
+        /// Its stamp.
+        stamp: Nanos,
+        /// What is wrong.
+        problem: String,
+    },
+    /// A camera frame missing from `/tf_static`.
+    #[error("SLAM camera {camera}: frame `{frame}` is not in /tf_static")]
+    UnknownFrame {
+        /// The camera.
+        camera: String,
+        /// The frame.
+        frame: String,
+    },
+    /// Invalid settings.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+}
+
+/// One configured camera's inputs.
+#[derive(Debug)]
+struct CameraSlot {
+    name: String,
+    left_topic: String,
+    right_topic: String,
+    left_info_topic: String,
+    right_info_topic: String,
+    front_end: StereoFrontEnd,
+    left: Option<ImageMsg>,
+    right: Option<ImageMsg>,
+    left_info: Option<CameraInfoMsg>,
+    right_info: Option<CameraInfoMsg>,
+    gray: (GrayImage, GrayImage),
+    /// The latest extracted pair and whether a rig frame used it.
+    latest: Option<(Nanos, StereoFrame, bool)>,
+    pairs: usize,
+}
+
+/// What [`VisualSlam::finish`] hands over.
+#[derive(Clone, Debug)]
+pub struct SlamOutput {
+    /// The estimate source (`slam`, `slam_single_camera`).
+    pub source: &'static str,
+    /// Every tracked frame's `world_from_body` (keyframe-relative, after the final BA).
+    pub trajectory: Trajectory,
+    /// Per-frame outcomes, in order.
+    pub frames: Vec<FrameResult>,
+    /// Tracking losses.
+    pub losses: Vec<TrackingLoss>,
+    /// Tracker counters.
+    pub stats: TrackerStats,
+    /// Stereo pairs extracted per camera (name, count).
+    pub pairs: Vec<(String, usize)>,
+    /// Live landmarks at the end.
+    pub landmarks: usize,
+    /// Wall-clock seconds spent in the SLAM (feature extraction, tracking, local BA); for
+    /// `timing.json`, never for results.
+    pub wall_s: f64,
+}
+
+/// The visual SLAM fed by messages (see the module docs).
+#[derive(Debug)]
+pub struct VisualSlam {
+    source: &'static str,
+    cfg: SlamConfig,
+    static_transforms: StaticTransforms,
+    slots: Vec<CameraSlot>,
+    tracker: Option<Tracker>,
+    frames: Vec<FrameResult>,
+    busy_s: f64,
+}
+
+impl VisualSlam {
+    /// A SLAM over the cameras of `cfg`, with the robot's `/tf_static`, producing the
+    /// estimate source `source`.
+    pub fn new(
+        source: &'static str,
+        cfg: SlamConfig,
+        static_transforms: StaticTransforms,
+    ) -> Result<Self, SlamError> {
+        cfg.validate()?;
+        let mut slots = Vec::with_capacity(cfg.cameras.len());
+        for name in &cfg.cameras {
+            slots.push(CameraSlot {
+                name: name.clone(),
+                left_topic: format!("/{name}/left/image_rect_color"),
+                right_topic: format!("/{name}/right/image_rect_color"),
+                left_info_topic: format!("/{name}/left/camera_info"),
+                right_info_topic: format!("/{name}/right/camera_info"),
+                front_end: StereoFrontEnd::new(cfg.features.clone())?,
+                left: None,
+                right: None,
+                left_info: None,
+                right_info: None,
+                gray: (GrayImage::default(), GrayImage::default()),
+                latest: None,
+                pairs: 0,
+            });
+        }
+        Ok(VisualSlam {
+            source,
+            cfg,
+            static_transforms,
+            slots,
+            tracker: None,
+            frames: Vec::new(),
+            busy_s: 0.0,
+        })
+    }
+
+    /// The tracker, once every camera's calibration has been seen.
+    pub fn tracker(&self) -> Option<&Tracker> {
+        self.tracker.as_ref()
+    }
+
+    /// Takes one delivered message (others than the SLAM's are ignored).
+    pub fn push(&mut self, msg: &Message) -> Result<(), SlamError> {
+        match msg {
+            Message::Image(img) => {
+                let topic = img.topic.as_ref();
+                let Some((i, left)) = self.slots.iter().enumerate().find_map(|(i, s)| {
+                    if topic == s.left_topic {
+                        Some((i, true))
+                    } else if topic == s.right_topic {
+                        Some((i, false))
+                    } else {
+                        None
+                    }
+                }) else {
+                    return Ok(());
+                };
+                let s = &mut self.slots[i];
+                if left {
+                    s.left = Some(img.clone());
+                } else {
+                    s.right = Some(img.clone());
+                }
+                let started = std::time::Instant::now();
+                let r = self.try_pair(i);
+                self.busy_s += started.elapsed().as_secs_f64();
+                r
+            }
+            Message::CameraInfo(info) => {
+                let topic = info.topic.as_ref();
+                for s in &mut self.slots {
+                    if topic == s.left_info_topic {
+                        s.left_info = Some(info.clone());
+                    } else if topic == s.right_info_topic {
+                        s.right_info = Some(info.clone());
+                    }
+                }
+                Ok(())
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// Extracts camera `i`'s pair when both images of one stamp are in, and tracks a rig
+    /// frame when `i` is the primary.
+    fn try_pair(&mut self, i: usize) -> Result<(), SlamError> {
+        let s = &mut self.slots[i];
+        let (Some(l), Some(r)) = (&s.left, &s.right) else {
+            return Ok(());
+        };
+        if l.stamp != r.stamp {
+            // Keep the newer image; its partner is still on its way.
+            if l.stamp < r.stamp {
+                s.left = None;
+            } else {
+                s.right = None;
+            }
+            return Ok(());
+        }
+        let (Some(l), Some(r)) = (s.left.take(), s.right.take()) else {
+            return Ok(());
+        };
+        if self.tracker.is_none() && !self.build_tracker()? {
+            return Ok(());
+        }
+        let s = &mut self.slots[i];
+        let image_err = |m: &ImageMsg| {
+            let (topic, stamp) = (m.topic.to_string(), m.stamp);
+            move |source| SlamError::Image {
+                topic,
+                stamp,
+                source,
+            }
+        };
+        s.gray.0.set_from_msg(&l).map_err(image_err(&l))?;
+        s.gray.1.set_from_msg(&r).map_err(image_err(&r))?;
+        let stereo = stereo_camera(s)?;
+        let mut frame = s.latest.take().map(|x| x.1).unwrap_or_default();
+        s.front_end
+            .process(&stereo, &s.gray.0, &s.gray.1, &mut frame);
+        s.latest = Some((l.stamp, frame, false));
+        s.pairs += 1;
+        if i == 0 {
+            self.track_rig_frame(l.stamp);
+        }
+        Ok(())
+    }
+
+    /// Builds the tracker once every camera's two `CameraInfo`s are known; `false` while
+    /// some are missing.
+    fn build_tracker(&mut self) -> Result<bool, SlamError> {
+        let mut rig = Vec::with_capacity(self.slots.len());
+        for s in &self.slots {
+            let (Some(li), Some(_)) = (&s.left_info, &s.right_info) else {
+                return Ok(false);
+            };
+            let body_from_camera = self
+                .static_transforms
+                .body_from(li.frame_id.as_str())
+                .ok_or_else(|| SlamError::UnknownFrame {
+                    camera: s.name.clone(),
+                    frame: li.frame_id.as_str().to_string(),
+                })?;
+            let stereo = stereo_camera(s)?;
+            let k = &li.k;
+            if li.d.iter().any(|&d| d != 0.0) {
+                return Err(SlamError::CameraInfo {
+                    topic: s.left_info_topic.clone(),
+                    stamp: li.stamp,
+                    problem: format!(
+                        "field `d` is {:?}; the SLAM needs rectified images (all zero)",
+                        li.d
+                    ),
+                });
+            }
+            rig.push(TrackerCamera {
+                camera: RigCamera {
+                    fx: k[0],
+                    fy: k[4],
+                    cx: k[2],
+                    cy: k[5],
+                    body_from_camera,
+                },
+                baseline_m: stereo.baseline_m,
+            });
+        }
+        self.tracker = Some(Tracker::new(
+            self.cfg.tracking.clone(),
+            &self.cfg.features.orb,
+            rig,
+        )?);
+        Ok(true)
+    }
+
+    /// Tracks the rig frame of the primary's pair at `stamp`.
+    fn track_rig_frame(&mut self, stamp: Nanos) {
+        let Some(tracker) = self.tracker.as_mut() else {
+            return;
+        };
+        let max_offset = Nanos::from_secs_f64(self.cfg.max_camera_offset_s);
+        let mut inputs = Vec::with_capacity(self.slots.len());
+        for (camera, s) in self.slots.iter_mut().enumerate() {
+            if let Some((t, frame, used)) = s.latest.as_mut()
+                && !*used
+                && Nanos((*t - stamp).0.abs()) <= max_offset
+            {
+                *used = true;
+                inputs.push(CameraInput {
+                    camera,
+                    stamp: *t,
+                    features: frame,
+                });
+            }
+        }
+        let result = tracker.track(stamp, &inputs);
+        self.frames.push(result);
+    }
+
+    /// The run's trajectory, losses and counters.
+    pub fn finish(self) -> SlamOutput {
+        let pairs = self
+            .slots
+            .iter()
+            .map(|s| (s.name.clone(), s.pairs))
+            .collect();
+        let Some(tracker) = self.tracker else {
+            return SlamOutput {
+                source: self.source,
+                trajectory: Trajectory::new(),
+                frames: self.frames,
+                losses: Vec::new(),
+                stats: TrackerStats::default(),
+                pairs,
+                landmarks: 0,
+                wall_s: self.busy_s,
+            };
+        };
+        let mut trajectory = Trajectory::new();
+        for (stamp, world_from_body) in tracker.trajectory() {
+            trajectory.push(PoseSample {
+                stamp,
+                world_from_body,
+                covariance: None,
+            });
+        }
+        SlamOutput {
+            source: self.source,
+            trajectory,
+            frames: self.frames,
+            losses: tracker.losses().to_vec(),
+            stats: tracker.stats().clone(),
+            pairs,
+            landmarks: tracker.map().n_live_landmarks(),
+            wall_s: self.busy_s,
+        }
+    }
+}
+
+/// The rectified stereo geometry of a slot from its right `CameraInfo`.
+fn stereo_camera(s: &CameraSlot) -> Result<super::StereoCamera, SlamError> {
+    let Some(ri) = &s.right_info else {
+        return Err(SlamError::CameraInfo {
+            topic: s.right_info_topic.clone(),
+            stamp: Nanos(0),
+            problem: "no right camera_info received".to_string(),
+        });
+    };
+    super::StereoCamera::from_right_info(ri)
+        .filter(|c| c.baseline_m > 0.0 && c.fx > 0.0)
+        .ok_or_else(|| SlamError::CameraInfo {
+            topic: s.right_info_topic.clone(),
+            stamp: ri.stamp,
+            problem: format!(
+                "field `p` = {:?} gives no positive baseline (expected p[3] = -fx·baseline)",
+                ri.p
+            ),
+        })
+}
+
+impl SlamOutput {
+    /// A SLAM metric by its expectation name (see `crate::expect::SLAM_METRICS`).
+    pub fn metric(&self, name: &str) -> Option<f64> {
+        let end = self.frames.last().map(|f| f.stamp);
+        Some(match name {
+            "tracking_losses" => self.losses.len() as f64,
+            "tracking_lost_s" => self
+                .losses
+                .iter()
+                .map(|l| match l.end.or(end) {
+                    Some(e) => (e - l.start).as_secs_f64().max(0.0),
+                    None => 0.0,
+                })
+                .sum(),
+            "keyframes" => self.stats.keyframes as f64,
+            "maps_started" => self.stats.initializations as f64,
+            _ => return None,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+    use nalgebra::Isometry3;
+    use std::sync::Arc;
+    use vinebench_msgs::{FrameId, ImageEncoding};
+
+    const FX: f64 = 300.0;
+
+    fn info(topic: &str, frame: &str, p3: f64) -> Message {
+        Message::CameraInfo(CameraInfoMsg {
+            stamp: Nanos(5),
+            topic: Arc::from(topic),
+            frame_id: FrameId::new(frame),
+            width: 64,
+            height: 48,
+            d: [0.0; 5],
+            k: [FX, 0.0, 32.0, 0.0, FX, 24.0, 0.0, 0.0, 1.0],
+            r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            p: [FX, 0.0, 32.0, p3, 0.0, FX, 24.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+        })
+    }
+
+    fn image(topic: &str, stamp: i64, len: usize) -> Message {
+        Message::Image(ImageMsg {
+            stamp: Nanos(stamp),
+            topic: Arc::from(topic),
+            frame_id: FrameId::new("front_left"),
+            width: 64,
+            height: 48,
+            encoding: ImageEncoding::Mono8,
+            data: vec![128u8; len].into(),
+        })
+    }
+
+    fn slam() -> VisualSlam {
+        let mut tf = StaticTransforms::new("base_link");
+        tf.insert("front_left", Isometry3::identity());
+        let cfg = SlamConfig {
+            enabled: true,
+            cameras: vec!["front".to_string()],
+            ..SlamConfig::default()
+        };
+        VisualSlam::new(SLAM_SOURCE, cfg, tf).unwrap()
+    }
+
+    #[test]
+    fn a_right_camera_info_without_a_baseline_is_an_error_naming_topic_and_field() {
+        let mut v = slam();
+        v.push(&info("/front/left/camera_info", "front_left", 0.0))
+            .unwrap();
+        v.push(&info("/front/right/camera_info", "front_right", 0.0))
+            .unwrap();
+        v.push(&image("/front/left/image_rect_color", 7, 64 * 48))
+            .unwrap();
+        let e = v
+            .push(&image("/front/right/image_rect_color", 7, 64 * 48))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("/front/right/camera_info") && e.contains("field `p`"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_truncated_image_is_an_error_naming_its_topic() {
+        let mut v = slam();
+        v.push(&info("/front/left/camera_info", "front_left", -FX * 0.12))
+            .unwrap();
+        v.push(&info("/front/right/camera_info", "front_right", -FX * 0.12))
+            .unwrap();
+        v.push(&image("/front/left/image_rect_color", 7, 10))
+            .unwrap();
+        let e = v
+            .push(&image("/front/right/image_rect_color", 7, 64 * 48))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("/front/left/image_rect_color"), "{e}");
+    }
+
+    #[test]
+    fn pairs_are_made_by_stamp_and_other_topics_ignored() {
+        let mut v = slam();
+        v.push(&info("/front/left/camera_info", "front_left", -FX * 0.12))
+            .unwrap();
+        v.push(&info("/front/right/camera_info", "front_right", -FX * 0.12))
+            .unwrap();
+        v.push(&image("/rear/left/image_rect_color", 7, 3)).unwrap();
+        v.push(&image("/front/left/image_rect_color", 7, 64 * 48))
+            .unwrap();
+        // A right image of another stamp does not pair; the newer one waits.
+        v.push(&image("/front/right/image_rect_color", 9, 64 * 48))
+            .unwrap();
+        v.push(&image("/front/left/image_rect_color", 9, 64 * 48))
+            .unwrap();
+        let out = v.finish();
+        assert_eq!(out.pairs, vec![("front".to_string(), 1)]);
+        // A flat image has no features: no map yet, no pose.
+        assert_eq!(out.frames.len(), 1);
+        assert!(out.trajectory.samples.is_empty());
+        assert_eq!(
+            out.frames[0].state,
+            super::super::TrackingState::NotInitialized
+        );
+    }
+
+    #[test]
+    fn an_unknown_camera_frame_is_an_error() {
+        let mut v = slam();
+        v.push(&info("/front/left/camera_info", "nowhere", -FX * 0.12))
+            .unwrap();
+        v.push(&info("/front/right/camera_info", "front_right", -FX * 0.12))
+            .unwrap();
+        v.push(&image("/front/left/image_rect_color", 7, 64 * 48))
+            .unwrap();
+        let e = v
+            .push(&image("/front/right/image_rect_color", 7, 64 * 48))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`nowhere`") && e.contains("/tf_static"), "{e}");
+    }
+}
