@@ -216,7 +216,10 @@ fn a_failing_robot_expectation_exits_1_through_the_cli() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(stdout.contains("FAILS: collisions.robot <= 0"), "{stdout}");
-    assert!(stdout.contains("\nrobot            stuck at "), "{stdout}");
+    assert!(
+        stdout.contains(&format!("\n{:<18} stuck at ", "robot")),
+        "{stdout}"
+    );
 
     // The same run asked to hit something passes.
     std::fs::write(
