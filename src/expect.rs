@@ -297,6 +297,14 @@ impl fmt::Display for ExpectationResult {
 }
 
 impl Expectation {
+    /// The metric references it uses: the left-hand side, then the right's if any.
+    pub fn refs(&self) -> impl Iterator<Item = &MetricRef> {
+        std::iter::once(&self.lhs).chain(match &self.rhs {
+            Rhs::Metric { metric, .. } => Some(metric),
+            Rhs::Number(_) => None,
+        })
+    }
+
     /// Parses `text`; `sources` are the estimate sources the scenario runs
     /// ([`ROBOT_SOURCE`] is always valid and need not be listed).
     pub fn parse(text: &str, sources: &[&str]) -> Result<Expectation, ExpectationError> {

@@ -109,11 +109,7 @@ impl MappingStage {
             Vec::new()
         };
         for (i, x) in sc.expectations.iter().enumerate() {
-            let refs = std::iter::once(&x.lhs).chain(match &x.rhs {
-                crate::expect::Rhs::Metric { metric, .. } => Some(metric),
-                crate::expect::Rhs::Number(_) => None,
-            });
-            for r in refs {
+            for r in x.refs() {
                 if is_map_metric(&r.metric) && !mapped.contains(&r.source.as_str()) {
                     return Err(sc.field_error(
                         &format!("expect[{i}]"),

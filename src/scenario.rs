@@ -318,11 +318,7 @@ impl LoadedScenario {
         for (i, text) in s.expect.iter().enumerate() {
             match Expectation::parse(text, &sources) {
                 Ok(x) => {
-                    let refs = std::iter::once(&x.lhs).chain(match &x.rhs {
-                        crate::expect::Rhs::Metric { metric, .. } => Some(metric),
-                        crate::expect::Rhs::Number(_) => None,
-                    });
-                    for r in refs {
+                    for r in x.refs() {
                         let slam_metric = crate::expect::SLAM_METRICS
                             .iter()
                             .any(|(m, _)| *m == r.metric);
