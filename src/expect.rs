@@ -140,6 +140,24 @@ pub const SLAM_METRICS: &[(&str, &str)] = &[
         "maps_started",
         "maps the SLAM started (1 + reinitializations after losses)",
     ),
+    ("loops", "loop closures the SLAM accepted (loops.csv)"),
+    (
+        "false_loops",
+        "accepted loops whose true poses are farther apart than scoring.loop_distance_m",
+    ),
+    (
+        "loop_precision",
+        "true loops / accepted loops (undefined without loops)",
+    ),
+    (
+        "loop_precision_heading",
+        "loops true with the heading check too / accepted loops",
+    ),
+    (
+        "loop_recall",
+        "ground-truth revisit episodes with a loop / revisit episodes (undefined without revisits)",
+    ),
+    ("revisits", "ground-truth revisit episodes of the run"),
 ];
 
 /// The pseudo-source of the robot's own run (ground truth against its route).

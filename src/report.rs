@@ -44,6 +44,10 @@ pub struct Report {
     /// The SLAM metrics of each SLAM source (absent when `[slam]` is off).
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub slam: BTreeMap<String, BTreeMap<String, f64>>,
+    /// The loop closures of each SLAM source with their ground-truth check (also in
+    /// `loops.csv`).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub loops: BTreeMap<String, crate::scoring::loops::LoopScore>,
     /// Expectation outcomes, in file order.
     pub expectations: Vec<ExpectationResult>,
     /// True when every expectation holds.
@@ -348,6 +352,7 @@ impl Report {
             robot,
             maps,
             slam,
+            loops,
         } = scores;
         let sources = sim
             .estimates
@@ -392,6 +397,7 @@ impl Report {
             sources,
             maps,
             slam: slam.into_iter().collect(),
+            loops: loops.into_iter().collect(),
             expectations,
             passed,
         }
@@ -511,7 +517,7 @@ impl Report {
             md.push_str(&maps_markdown(&self.maps));
         }
         if !self.slam.is_empty() {
-            md.push_str(&slam_markdown(&self.slam));
+            md.push_str(&slam_markdown(&self.slam, &self.loops));
         }
 
         let _ = writeln!(
@@ -566,22 +572,62 @@ impl Report {
 }
 
 /// The `## Visual SLAM` section: one row per SLAM source.
-fn slam_markdown(slam: &BTreeMap<String, BTreeMap<String, f64>>) -> String {
+fn slam_markdown(
+    slam: &BTreeMap<String, BTreeMap<String, f64>>,
+    loops: &BTreeMap<String, crate::scoring::loops::LoopScore>,
+) -> String {
     let mut md = String::from(
         "\n## Visual SLAM (Kokas et al.)\n\n\
-         | source | tracking losses | time lost [s] | keyframes | maps started |\n\
-         |---|---:|---:|---:|---:|\n",
+         Loops: accepted loop closures (`loops.csv`), false = true poses farther apart than \
+         `scoring.loop_distance_m`; recall over ground-truth revisits.\n\n\
+         | source | tracking losses | time lost [s] | keyframes | maps started | loops | false loops | precision | recall |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     let get = |m: &BTreeMap<String, f64>, k: &str| m.get(k).copied().unwrap_or(f64::NAN);
+    let opt = |m: &BTreeMap<String, f64>, k: &str| fmt_opt(m.get(k).copied(), 2);
     for (source, m) in slam {
         let _ = writeln!(
             md,
-            "| {source} | {} | {:.2} | {} | {} |",
+            "| {source} | {} | {:.2} | {} | {} | {} | {} | {} | {} |",
             get(m, "tracking_losses"),
             get(m, "tracking_lost_s"),
             get(m, "keyframes"),
             get(m, "maps_started"),
+            get(m, "loops"),
+            get(m, "false_loops"),
+            opt(m, "loop_precision"),
+            opt(m, "loop_recall"),
         );
+    }
+    let rows: Vec<_> = loops
+        .iter()
+        .flat_map(|(s, l)| l.loops.iter().map(move |x| (s, x)))
+        .collect();
+    if !rows.is_empty() {
+        md.push_str(
+            "\n| source | query stamp [ns] | matched stamp [ns] | method | tag | true distance [m] | correct | correction [m] | correction [deg] |\n\
+             |---|---:|---:|---|---:|---:|---|---:|---:|\n",
+        );
+        for (s, l) in rows {
+            let _ = writeln!(
+                md,
+                "| {s} | {} | {} | {} | {} | {:.3} | {} | {:.3} | {:.2} |",
+                l.query_stamp.0,
+                l.matched_stamp.0,
+                l.method,
+                l.tag_id.map(|i| i.to_string()).unwrap_or_default(),
+                l.truth_distance_m,
+                if l.correct_with_heading {
+                    "yes"
+                } else if l.correct {
+                    "yes (heading off)"
+                } else {
+                    "**no**"
+                },
+                l.correction_m,
+                l.correction_deg,
+            );
+        }
     }
     md
 }

@@ -238,6 +238,8 @@ pub struct Scores {
     pub maps: Vec<crate::mapping::MapReport>,
     /// The SLAM metrics of each SLAM source (empty when `[slam]` is off).
     pub slam: Vec<(String, BTreeMap<String, f64>)>,
+    /// The loop closures of each SLAM source, checked against ground truth.
+    pub loops: Vec<(String, scoring::loops::LoopScore)>,
 }
 
 impl Scores {
@@ -889,6 +891,17 @@ pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Scores {
             )
         })
         .collect();
+    let th = sc.scenario.scoring.loop_thresholds();
+    let loops: Vec<(String, scoring::loops::LoopScore)> = sim
+        .slam
+        .iter()
+        .map(|o| {
+            (
+                o.source.to_string(),
+                scoring::loops::score_loops(&o.loops, &sim.truth, &th),
+            )
+        })
+        .collect();
     Scores {
         sources,
         robot: RobotReport::new(sim),
@@ -900,14 +913,20 @@ pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Scores {
         slam: sim
             .slam
             .iter()
-            .map(|o| {
+            .zip(&loops)
+            .map(|(o, (_, l))| {
                 let metrics = crate::expect::SLAM_METRICS
                     .iter()
-                    .filter_map(|(m, _)| o.metric(m).map(|v| (m.to_string(), v)))
+                    .filter_map(|(m, _)| {
+                        o.metric(m)
+                            .or_else(|| l.metric(m))
+                            .map(|v| (m.to_string(), v))
+                    })
                     .collect();
                 (o.source.to_string(), metrics)
             })
             .collect(),
+        loops,
     }
 }
 
@@ -973,6 +992,13 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
         scoring::tum::write_tum(&p, &c.truth).map_err(io_err(&p))?;
     }
     let scores = score(sc, &sim);
+    if !sim.slam.is_empty() {
+        let t0 = sim.truth.samples.first().map_or(Nanos(0), |s| s.stamp);
+        let named: Vec<(&str, &scoring::loops::LoopScore)> =
+            scores.loops.iter().map(|(n, l)| (n.as_str(), l)).collect();
+        let p = dir.join("loops.csv");
+        std::fs::write(&p, scoring::loops::loops_csv(&named, t0)).map_err(io_err(&p))?;
+    }
     let expectations = evaluate(sc, &scores);
     let report = Report::new(sc, &sim, scores, expectations);
     report::write(&dir, &sim, &report)?;
@@ -994,6 +1020,11 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
         timing[format!("{}_s", o.source)] = serde_json::json!(o.wall_s);
         timing[format!("{}_frames_per_s", o.source)] =
             serde_json::json!(o.stats.frames as f64 / o.wall_s.max(1e-9));
+        if !o.loops.is_empty() {
+            // Part of <source>_s: pose graph and global BA of each loop.
+            timing[format!("{}_loop_closing_s", o.source)] =
+                serde_json::json!(o.loops.iter().map(|l| l.wall_s).collect::<Vec<_>>());
+        }
     }
     let tp = dir.join("timing.json");
     std::fs::write(&tp, format!("{timing:#}\n")).map_err(io_err(&tp))?;

@@ -79,3 +79,57 @@ fn runs_are_bit_identical_across_repeats_and_thread_counts() {
          UPDATE_GOLDEN=1 cargo test --release --test determinism"
     );
 }
+
+/// The SLAM (and its baselines) on the first 14 s of the box-occluder scenario, which
+/// registers the tag: identical trajectories and reports on 1 and 2 threads.
+#[test]
+fn slam_runs_are_bit_identical_across_thread_counts() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("scenarios/csl-box-occluder.toml")).unwrap();
+    let start = text.find("expect = [").unwrap();
+    let end = start + text[start..].find("]\n").unwrap() + 2;
+    // Images are not recorded (half a gigabyte per run otherwise).
+    let short = format!(
+        "{}max_duration_s = 14.0\nexpect = [\"keyframes.slam >= 1\"]\n{}\n[recording]\n\
+         exclude_topics = [\"/front/*\", \"/rear/*\", \"/side/*\"]\n",
+        &text[..start],
+        &text[end..]
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = dir.path().join("csl-short.toml");
+    std::fs::write(&scenario, short).unwrap();
+    let run = |threads: &str, out: &Path| {
+        Command::cargo_bin("vinebench")
+            .unwrap()
+            .args(["--threads", threads, "run", "--quiet", "--out"])
+            .arg(out)
+            .arg(&scenario)
+            .assert()
+            .code(0);
+    };
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    run("1", &a);
+    run("2", &b);
+    for f in [
+        "estimate_slam.tum",
+        "estimate_slam_single_camera.tum",
+        "estimate_slam_no_loops.tum",
+        "loops.csv",
+        "report.json",
+    ] {
+        assert_eq!(
+            std::fs::read(a.join(f)).unwrap(),
+            std::fs::read(b.join(f)).unwrap(),
+            "{f} differs between 1 and 2 threads"
+        );
+    }
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(a.join("report.json")).unwrap()).unwrap();
+    let slam = report["sources"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["name"] == "slam")
+        .unwrap();
+    assert_eq!(slam["events"]["tags_registered"], 1, "{slam}");
+}

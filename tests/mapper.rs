@@ -898,6 +898,7 @@ fn a_mapping_run_writes_map_mesh_model_and_scores() {
         robot: out.report.robot.clone(),
         slam: Vec::new(),
         maps: out.report.maps.clone(),
+        loops: Vec::new(),
     };
     let f = scores.metric("map_f_score_5cm", "eif").unwrap();
     assert_eq!(Some(f), maps[0]["score"]["f_scores"][2]["f_score"].as_f64());

@@ -11,6 +11,7 @@
 //! `scripts/evo_crosscheck.py` prints evo's numbers for two TUM files, to compare.
 
 pub mod align;
+pub mod loops;
 pub mod map;
 pub mod metrics;
 pub mod plots;
@@ -34,6 +35,12 @@ pub struct ScoringParams {
     pub rpe_pairs_from_reference: bool,
     /// Ground-truth output rate, Hz.
     pub ground_truth_rate_hz: f64,
+    /// A loop closure is true when the true poses at its two stamps are this close, m.
+    pub loop_distance_m: f64,
+    /// The heading check of a loop, and of a ground-truth revisit, deg.
+    pub loop_heading_deg: f64,
+    /// Path travelled before being near an earlier pose again is a revisit, m.
+    pub revisit_min_path_m: f64,
 }
 
 impl ScoringParams {
@@ -42,7 +49,19 @@ impl ScoringParams {
         require_non_negative("scoring.t_max_diff_s", self.t_max_diff_s)?;
         require_positive("scoring.rpe_delta_m", self.rpe_delta_m)?;
         require_positive("scoring.ground_truth_rate_hz", self.ground_truth_rate_hz)?;
+        require_positive("scoring.loop_distance_m", self.loop_distance_m)?;
+        require_positive("scoring.loop_heading_deg", self.loop_heading_deg)?;
+        require_non_negative("scoring.revisit_min_path_m", self.revisit_min_path_m)?;
         Ok(())
+    }
+
+    /// The loop-closure thresholds.
+    pub fn loop_thresholds(&self) -> loops::LoopThresholds {
+        loops::LoopThresholds {
+            distance_m: self.loop_distance_m,
+            heading_deg: self.loop_heading_deg,
+            revisit_min_path_m: self.revisit_min_path_m,
+        }
     }
 }
 

@@ -1,12 +1,8 @@
 //! Multi-camera stereo visual SLAM (issue #7; Kokas et al., "Multicamera Visual SLAM for
 //! Vineyard Inspection").
 //!
-//! Behind the ground-truth firewall like the estimator and the mapper: it sees image
-//! messages (and, later, IMU and tag-camera messages) only. The module will own the
-//! whole SLAM: features, stereo initialisation, tracking with motion-only bundle
-//! adjustment over every camera of the rig, keyframes and local BA, AprilTag loop closure
-//! with global BA, and the single-camera and bag-of-words baselines. For now it holds the
-//! **feature front-end**, in data-flow order, and the tracking's pose optimizer:
+//! Behind the ground-truth firewall like the estimator and the mapper: it sees image and
+//! `CameraInfo` messages and `/tf_static` only. In data-flow order:
 //!
 //! - [`image`]: [`GrayImage`] from an `ImageMsg`, the scale [`Pyramid`], the 7×7 blur.
 //! - [`fast`]: FAST-9 with a score, non-maximum suppression, per-cell adaptive threshold.
@@ -18,8 +14,18 @@
 //! - [`motion_ba`]: motion-only bundle adjustment of the rig pose over the observations
 //!   of every camera through the rig extrinsics (eqs. 1-3), Huber kernel, level weights,
 //!   ORB-SLAM-style outlier rounds.
+//! - [`tracking`] and [`map`]: constant-velocity tracking by projection search, keyframes,
+//!   landmark culling, local BA.
 //! - [`bundle`]: local and global bundle adjustment of keyframe poses and landmarks
 //!   (eqs. 4-5), mono and stereo residuals, sparse Schur-complement Levenberg-Marquardt.
+//! - [`tags`]: AprilTag (tag36h11) detection on the tag camera and the tag's pose from its
+//!   corners through the lens model.
+//! - [`pose_graph`]: SE(3) pose graph over the keyframes.
+//! - [`loop_closing`]: tags registered at their first sighting; a sighting after the
+//!   robot went away closes a loop (pose graph, landmarks moved, global BA).
+//! - [`bow`]: bag-of-words vocabulary, keyframe database and DBoW2-style loop detection
+//!   (the baseline; not wired into the SLAM yet).
+//! - [`system`]: the message-level [`VisualSlam`] tying it together.
 //! - [`bench`](mod@bench): timing of the front-end for `vinebench bench`.
 //!
 //! ```
@@ -33,17 +39,21 @@
 //! ```
 
 pub mod bench;
+pub mod bow;
 pub mod bundle;
 pub mod fast;
 pub mod frontend;
 pub mod grid;
 pub mod image;
+pub mod loop_closing;
 pub mod map;
 pub mod motion_ba;
 pub mod orb;
+pub mod pose_graph;
 pub mod ssc;
 pub mod stereo;
 pub mod system;
+pub mod tags;
 pub mod tracking;
 
 pub use frontend::{FrontEndConfig, StereoFrame, StereoFrontEnd};
@@ -92,6 +102,51 @@ pub fn estimator_output(out: &SlamOutput) -> crate::estimator::EstimatorOutput {
         ("landmarks_at_end", out.landmarks),
     ] {
         stats.events.insert(k.to_string(), v as u64);
+    }
+    for (k, v) in [
+        ("tag_images", out.tag_images),
+        ("tag_detections", out.tag_detections),
+        ("tags_registered", out.loop_stats.tags_registered),
+        (
+            "tag_sightings_without_pose",
+            out.loop_stats.sightings_without_pose,
+        ),
+        ("loops", out.loops.len()),
+    ] {
+        if out.tag_images > 0 {
+            stats.events.insert(k.to_string(), v as u64);
+        }
+    }
+    for l in &out.loops {
+        let ba = l.global_ba.map_or_else(
+            || "no global BA".to_string(),
+            |b| {
+                format!(
+                    "global BA over {} keyframes, {} landmarks, {} observations: {} iterations, \
+                     cost {:.0} -> {:.0}, {} outliers",
+                    b.keyframes,
+                    b.landmarks,
+                    b.observations,
+                    b.iterations,
+                    b.initial_cost,
+                    b.final_cost,
+                    b.outliers
+                )
+            },
+        );
+        stats.notes.push(format!(
+            "loop ({}{}) at {} onto {}: keyframe {} corrected by {:.3} m, {:.2} deg; pose graph \
+             cost {:.1} -> {:.1}; {ba}",
+            l.source.name(),
+            l.tag_id.map(|i| format!(" {i}")).unwrap_or_default(),
+            l.query_stamp,
+            l.matched_stamp,
+            l.query_keyframe,
+            l.correction_m,
+            l.correction_deg,
+            l.pose_graph_cost.0,
+            l.pose_graph_cost.1,
+        ));
     }
     for l in &out.losses {
         stats.notes.push(match l.end {

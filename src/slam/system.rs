@@ -14,12 +14,16 @@
 
 use super::frontend::{FrontEndConfig, StereoFrame, StereoFrontEnd};
 use super::image::{GrayImage, ImageError};
+use super::loop_closing::{LoopClosure, LoopConfig, LoopMethod, LoopStats, TagLoopCloser};
 use super::motion_ba::RigCamera;
+use super::tags::{TagCamera, TagConfig, TagDetector, TagSighting, tag_pose_information};
 use super::tracking::{
     CameraInput, FrameResult, Tracker, TrackerCamera, TrackerStats, TrackingConfig, TrackingLoss,
 };
 use super::{ConfigError, check};
+use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
 use vinebench_msgs::{
     CameraInfoMsg, ImageMsg, Message, Nanos, PoseSample, StaticTransforms, Trajectory,
 };
@@ -39,6 +43,10 @@ pub struct SlamConfig {
     pub features: FrontEndConfig,
     /// Tracking and local mapping.
     pub tracking: TrackingConfig,
+    /// AprilTag detection on the tag camera.
+    pub tags: TagConfig,
+    /// Loop closure.
+    pub loop_closure: LoopConfig,
     /// Baselines run on the same messages, each an estimate source of its own.
     pub baselines: Vec<SlamBaseline>,
 }
@@ -47,9 +55,11 @@ pub struct SlamConfig {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SlamBaseline {
-    /// Only the first camera of `slam.cameras` (ORB-SLAM3-like stereo; source
+    /// Only the first camera of `slam.cameras`, no tags (ORB-SLAM3-like stereo; source
     /// `slam_single_camera`).
     SingleCamera,
+    /// Every camera, no loop closure (source `slam_no_loops`): the ATE without loops.
+    NoLoops,
 }
 
 impl SlamBaseline {
@@ -57,6 +67,7 @@ impl SlamBaseline {
     pub fn source(self) -> &'static str {
         match self {
             SlamBaseline::SingleCamera => "slam_single_camera",
+            SlamBaseline::NoLoops => "slam_no_loops",
         }
     }
 
@@ -66,6 +77,18 @@ impl SlamBaseline {
             SlamBaseline::SingleCamera => SlamConfig {
                 cameras: cfg.cameras.iter().take(1).cloned().collect(),
                 baselines: Vec::new(),
+                loop_closure: LoopConfig {
+                    method: LoopMethod::None,
+                    ..cfg.loop_closure.clone()
+                },
+                ..cfg.clone()
+            },
+            SlamBaseline::NoLoops => SlamConfig {
+                baselines: Vec::new(),
+                loop_closure: LoopConfig {
+                    method: LoopMethod::None,
+                    ..cfg.loop_closure.clone()
+                },
                 ..cfg.clone()
             },
         }
@@ -83,6 +106,8 @@ impl Default for SlamConfig {
             max_camera_offset_s: 0.1,
             features: FrontEndConfig::default(),
             tracking: TrackingConfig::default(),
+            tags: TagConfig::default(),
+            loop_closure: LoopConfig::default(),
             baselines: Vec::new(),
         }
     }
@@ -112,7 +137,14 @@ impl SlamConfig {
             )?;
         }
         self.features.validate()?;
-        self.tracking.validate()
+        self.tracking.validate()?;
+        self.tags.validate()?;
+        self.loop_closure.validate()
+    }
+
+    /// Whether this SLAM reads the tag camera.
+    pub fn uses_tags(&self) -> bool {
+        self.loop_closure.method == LoopMethod::Tags
     }
 
     /// Every SLAM a scenario runs: the SLAM itself, then each baseline, with the source
@@ -196,6 +228,14 @@ pub struct SlamOutput {
     pub pairs: Vec<(String, usize)>,
     /// Live landmarks at the end.
     pub landmarks: usize,
+    /// Accepted loop closures, in order.
+    pub loops: Vec<LoopClosure>,
+    /// Loop-closer counters.
+    pub loop_stats: LoopStats,
+    /// Tag-camera images processed and tags detected in them.
+    pub tag_images: usize,
+    /// Tag detections accepted.
+    pub tag_detections: usize,
     /// Wall-clock seconds spent in the SLAM (feature extraction, tracking, local BA); for
     /// `timing.json`, never for results.
     pub wall_s: f64,
@@ -211,6 +251,22 @@ pub struct VisualSlam {
     tracker: Option<Tracker>,
     frames: Vec<FrameResult>,
     busy_s: f64,
+    tags: Option<TagSlot>,
+}
+
+/// The tag camera's input and the loop closer.
+#[derive(Debug)]
+struct TagSlot {
+    image_topic: String,
+    info_topic: String,
+    info: Option<(TagCamera, Isometry3<f64>)>,
+    detector: TagDetector,
+    gray: GrayImage,
+    /// Sightings waiting for the tracker to pass their stamp.
+    pending: VecDeque<(Nanos, Vec<TagSighting>)>,
+    closer: TagLoopCloser,
+    images: usize,
+    detections: usize,
 }
 
 impl VisualSlam {
@@ -240,6 +296,22 @@ impl VisualSlam {
                 pairs: 0,
             });
         }
+        let tags = if cfg.uses_tags() {
+            let name = &cfg.tags.camera;
+            Some(TagSlot {
+                image_topic: format!("/{name}/color/image_raw"),
+                info_topic: format!("/{name}/color/camera_info"),
+                info: None,
+                detector: TagDetector::new(cfg.tags.clone())?,
+                gray: GrayImage::default(),
+                pending: VecDeque::new(),
+                closer: TagLoopCloser::new(cfg.loop_closure.clone())?,
+                images: 0,
+                detections: 0,
+            })
+        } else {
+            None
+        };
         Ok(VisualSlam {
             source,
             cfg,
@@ -248,6 +320,7 @@ impl VisualSlam {
             tracker: None,
             frames: Vec::new(),
             busy_s: 0.0,
+            tags,
         })
     }
 
@@ -261,6 +334,12 @@ impl VisualSlam {
         match msg {
             Message::Image(img) => {
                 let topic = img.topic.as_ref();
+                if self.tags.as_ref().is_some_and(|t| topic == t.image_topic) {
+                    let started = std::time::Instant::now();
+                    let r = self.detect_tags(img);
+                    self.busy_s += started.elapsed().as_secs_f64();
+                    return r;
+                }
                 let Some((i, left)) = self.slots.iter().enumerate().find_map(|(i, s)| {
                     if topic == s.left_topic {
                         Some((i, true))
@@ -291,6 +370,30 @@ impl VisualSlam {
                     } else if topic == s.right_info_topic {
                         s.right_info = Some(info.clone());
                     }
+                }
+                if let Some(t) = self.tags.as_mut()
+                    && topic == t.info_topic
+                    && t.info.is_none()
+                {
+                    let body_from_camera = self
+                        .static_transforms
+                        .body_from(info.frame_id.as_str())
+                        .ok_or_else(|| SlamError::UnknownFrame {
+                            camera: self.cfg.tags.camera.clone(),
+                            frame: info.frame_id.as_str().to_string(),
+                        })?;
+                    let camera = TagCamera::from_info(info);
+                    if !(camera.fx > 0.0 && camera.fy > 0.0) {
+                        return Err(SlamError::CameraInfo {
+                            topic: t.info_topic.clone(),
+                            stamp: info.stamp,
+                            problem: format!(
+                                "field `k` = {:?} has no positive focal lengths",
+                                info.k
+                            ),
+                        });
+                    }
+                    t.info = Some((camera, body_from_camera));
                 }
                 Ok(())
             }
@@ -411,6 +514,59 @@ impl VisualSlam {
         }
         let result = tracker.track(stamp, &inputs);
         self.frames.push(result);
+        self.close_loops(stamp);
+    }
+
+    /// Detects tags in a tag-camera image; the sightings wait for the tracker to pass
+    /// their stamp.
+    fn detect_tags(&mut self, img: &ImageMsg) -> Result<(), SlamError> {
+        let Some(t) = self.tags.as_mut() else {
+            return Ok(());
+        };
+        let Some((camera, _)) = &t.info else {
+            return Ok(());
+        };
+        t.gray
+            .set_from_msg(img)
+            .map_err(|source| SlamError::Image {
+                topic: img.topic.to_string(),
+                stamp: img.stamp,
+                source,
+            })?;
+        let sightings = t.detector.detect(&t.gray, camera);
+        t.images += 1;
+        t.detections += sightings.len();
+        if !sightings.is_empty() {
+            t.pending.push_back((img.stamp, sightings));
+        }
+        Ok(())
+    }
+
+    /// Hands the pending sightings stamped up to `tracked` to the loop closer.
+    fn close_loops(&mut self, tracked: Nanos) {
+        let (Some(t), Some(tracker)) = (self.tags.as_mut(), self.tracker.as_mut()) else {
+            return;
+        };
+        let Some((camera, body_from_camera)) = t.info else {
+            return;
+        };
+        let size_m = self.cfg.tags.size_m;
+        let var = self.cfg.loop_closure.tag_corner_sigma_px.powi(2);
+        while let Some((stamp, _)) = t.pending.front() {
+            if *stamp > tracked {
+                break;
+            }
+            let Some((stamp, sightings)) = t.pending.pop_front() else {
+                break;
+            };
+            for s in &sightings {
+                let covariance = tag_pose_information(&camera, size_m, &s.camera_from_tag)
+                    .and_then(|m| m.try_inverse())
+                    .map(|c| c * var);
+                t.closer
+                    .on_sighting(tracker, stamp, s, &body_from_camera, covariance);
+            }
+        }
     }
 
     /// The run's trajectory, losses and counters.
@@ -429,6 +585,10 @@ impl VisualSlam {
                 stats: TrackerStats::default(),
                 pairs,
                 landmarks: 0,
+                loops: Vec::new(),
+                loop_stats: LoopStats::default(),
+                tag_images: self.tags.as_ref().map_or(0, |t| t.images),
+                tag_detections: self.tags.as_ref().map_or(0, |t| t.detections),
                 wall_s: self.busy_s,
             };
         };
@@ -448,6 +608,18 @@ impl VisualSlam {
             stats: tracker.stats().clone(),
             pairs,
             landmarks: tracker.map().n_live_landmarks(),
+            loops: self
+                .tags
+                .as_ref()
+                .map(|t| t.closer.loops().to_vec())
+                .unwrap_or_default(),
+            loop_stats: self
+                .tags
+                .as_ref()
+                .map(|t| t.closer.stats().clone())
+                .unwrap_or_default(),
+            tag_images: self.tags.as_ref().map_or(0, |t| t.images),
+            tag_detections: self.tags.as_ref().map_or(0, |t| t.detections),
             wall_s: self.busy_s,
         }
     }
@@ -480,14 +652,17 @@ impl SlamOutput {
         let end = self.frames.last().map(|f| f.stamp);
         Some(match name {
             "tracking_losses" => self.losses.len() as f64,
-            "tracking_lost_s" => self
-                .losses
-                .iter()
-                .map(|l| match l.end.or(end) {
-                    Some(e) => (e - l.start).as_secs_f64().max(0.0),
-                    None => 0.0,
-                })
-                .sum(),
+            "tracking_lost_s" => {
+                self.losses
+                    .iter()
+                    .map(|l| match l.end.or(end) {
+                        Some(e) => (e - l.start).as_secs_f64().max(0.0),
+                        None => 0.0,
+                    })
+                    // An empty f64 sum is -0.0; + 0.0 makes it 0.0.
+                    .sum::<f64>()
+                    + 0.0
+            }
             "keyframes" => self.stats.keyframes as f64,
             "maps_started" => self.stats.initializations as f64,
             _ => return None,
@@ -540,6 +715,13 @@ mod tests {
             ..SlamConfig::default()
         };
         VisualSlam::new(SLAM_SOURCE, cfg, tf).unwrap()
+    }
+
+    #[test]
+    fn defaults_toml_documents_the_default_config() {
+        // `[slam]` of scenarios/defaults.toml and `SlamConfig::default()` say the same.
+        let from_file: SlamConfig = vinebench_msgs::defaults::section("slam").unwrap();
+        assert_eq!(from_file, SlamConfig::default());
     }
 
     #[test]

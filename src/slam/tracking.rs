@@ -278,6 +278,9 @@ pub struct Tracker {
     recovering: Option<(Nanos, usize)>,
     stats: TrackerStats,
     candidates: Vec<usize>,
+    /// After a loop closure: keyframes `.0...1` join the local map until there are `.2`
+    /// keyframes.
+    loop_window: Option<(u32, u32, u32)>,
 }
 
 /// Largest stamp offset of a camera used before the velocity is known (1 ms).
@@ -335,6 +338,7 @@ impl Tracker {
             recovering: None,
             stats: TrackerStats::default(),
             candidates: Vec::new(),
+            loop_window: None,
         })
     }
 
@@ -378,6 +382,53 @@ impl Tracker {
                 (f.stamp, kf.world_from_body * f.keyframe_from_body)
             })
             .collect()
+    }
+
+    /// After a loop closure onto keyframe `matched`: tracking searches the landmarks of
+    /// the keyframes around it too, until `local_keyframes` more keyframes are inserted.
+    pub fn open_loop_window(&mut self, matched: u32) {
+        let n = self.map.keyframes.len() as u32;
+        let half = (self.cfg.local_keyframes / 2) as u32;
+        let first = matched.saturating_sub(half);
+        let end = (matched + half + 1).min(n);
+        self.loop_window = Some((first, end, n + self.cfg.local_keyframes as u32));
+        self.update_local_map();
+    }
+
+    /// The body pose at `t` between the two tracked frames around it (each pose through
+    /// its keyframe's current pose, interpolated on SE(3)), as `(keyframe,
+    /// keyframe_from_body)` relative to the later frame's keyframe; `None` unless both
+    /// frames exist, belong to one map and lie within `max_gap` of each other.
+    pub fn pose_at(&self, t: Nanos, max_gap: Nanos) -> Option<(u32, Isometry3<f64>)> {
+        let i = self.frames.partition_point(|f| f.stamp < t);
+        let f1 = self.frames.get(i)?;
+        let world = |f: &FramePose| {
+            self.map.keyframes[f.keyframe as usize].world_from_body * f.keyframe_from_body
+        };
+        let kf1 = &self.map.keyframes[f1.keyframe as usize];
+        if f1.stamp == t {
+            return Some((f1.keyframe, f1.keyframe_from_body));
+        }
+        let f0 = self.frames.get(i.checked_sub(1)?)?;
+        if f1.stamp - f0.stamp > max_gap || self.map_of(f0.keyframe) != self.map_of(f1.keyframe) {
+            return None;
+        }
+        let (p0, p1) = (world(f0), world(f1));
+        let a = (t - f0.stamp).as_secs_f64() / (f1.stamp - f0.stamp).as_secs_f64();
+        let delta = p0.inverse() * p1;
+        let step = Isometry3::from_parts(
+            (delta.translation.vector * a).into(),
+            UnitQuaternion::from_scaled_axis(delta.rotation.scaled_axis() * a),
+        );
+        Some((f1.keyframe, kf1.world_from_body.inverse() * (p0 * step)))
+    }
+
+    /// The first keyframe of the map keyframe `k` belongs to.
+    fn map_of(&self, k: u32) -> u32 {
+        (0..=k)
+            .rev()
+            .find(|&i| self.map.keyframes[i as usize].map_start)
+            .unwrap_or(0)
     }
 
     /// Moves the pose of the last frame along with a correction of its reference keyframe
@@ -812,11 +863,22 @@ impl Tracker {
     }
 
     /// The landmarks of the last `local_keyframes` keyframes, sorted and unique.
+    /// After a loop closure, also those of the keyframes around the matched place, for
+    /// the next `local_keyframes` keyframes: the frames that follow match the old map's
+    /// landmarks, and local BA ties the two passes together.
     fn update_local_map(&mut self) {
         let n = self.map.keyframes.len();
+        if self.loop_window.is_some_and(|w| n >= w.2 as usize) {
+            self.loop_window = None;
+        }
         let from = n.saturating_sub(self.cfg.local_keyframes);
-        let mut ids: Vec<u32> = self.map.keyframes[from..]
+        let window = self
+            .loop_window
+            .map(|w| w.0 as usize..(w.1 as usize).min(from))
+            .unwrap_or(0..0);
+        let mut ids: Vec<u32> = self.map.keyframes[window]
             .iter()
+            .chain(&self.map.keyframes[from..])
             .flat_map(|kf| kf.landmarks())
             .filter(|&id| !self.map.landmarks[id as usize].dead)
             .collect();
@@ -831,7 +893,43 @@ impl Tracker {
     fn local_bundle_adjustment(&mut self, newest: u32) {
         let n = newest as usize + 1;
         let first_free = n.saturating_sub(self.cfg.local_ba_keyframes);
-        // Landmarks of the local keyframes.
+        let cfg = BundleConfig {
+            iterations_per_round: self.cfg.local_ba_iterations,
+            scale_factor: self.scale_factor,
+            ..BundleConfig::default()
+        };
+        if let Some(out) = self.bundle_adjust_keyframes(first_free as u32, n as u32, &cfg) {
+            self.stats.local_ba_runs += 1;
+            self.stats.local_ba_outliers += out.outliers;
+        }
+    }
+
+    /// Global BA (eq. 5, after a loop closure): every keyframe and live landmark; map
+    /// starts and anchored keyframes are held fixed. Returns the BA's outcome (`None`
+    /// when there was nothing to adjust or the problem was degenerate).
+    pub fn global_bundle_adjustment(&mut self, iterations: usize) -> Option<BundleOutcome> {
+        let cfg = BundleConfig {
+            iterations_per_round: iterations,
+            scale_factor: self.scale_factor,
+            ..BundleConfig::global()
+        };
+        let n = self.map.keyframes.len() as u32;
+        let out = self.bundle_adjust_keyframes(0, n, &cfg);
+        self.refresh_last_pose();
+        out
+    }
+
+    /// BA of keyframes `first_free..end` and their landmarks; the other keyframes
+    /// observing those landmarks, map starts and anchored keyframes are held fixed;
+    /// outlier observations are unlinked.
+    fn bundle_adjust_keyframes(
+        &mut self,
+        first_free: u32,
+        end: u32,
+        cfg: &BundleConfig,
+    ) -> Option<BundleOutcome> {
+        let (first_free, n) = (first_free as usize, end as usize);
+        // Landmarks of the free keyframes.
         let mut lms: Vec<u32> = self.map.keyframes[first_free..n]
             .iter()
             .flat_map(|kf| kf.landmarks())
@@ -840,9 +938,9 @@ impl Tracker {
         lms.sort_unstable();
         lms.dedup();
         if lms.is_empty() {
-            return;
+            return None;
         }
-        // Keyframes in the problem: local ones and those observing the landmarks.
+        // Keyframes in the problem: free ones and those observing the landmarks.
         let mut kf_ids: Vec<u32> = (first_free as u32..n as u32).collect();
         for &id in &lms {
             kf_ids.extend(
@@ -861,7 +959,10 @@ impl Tracker {
                 let kf = &self.map.keyframes[k as usize];
                 BaKeyFrame {
                     world_from_body: kf.world_from_body,
-                    fixed: (k as usize) < first_free || kf.map_start || kf.anchored,
+                    fixed: (k as usize) < first_free
+                        || (k as usize) >= n
+                        || kf.map_start
+                        || kf.anchored,
                 }
             })
             .collect();
@@ -914,16 +1015,18 @@ impl Tracker {
                 obs_refs.push((id, *o));
             }
         }
-        let cfg = BundleConfig {
-            iterations_per_round: self.cfg.local_ba_iterations,
-            scale_factor: self.scale_factor,
-            ..BundleConfig::default()
+        let Ok(result) = bundle_adjust(&cameras, &keyframes, &landmarks, &observations, cfg) else {
+            return None;
         };
-        let Ok(result) = bundle_adjust(&cameras, &keyframes, &landmarks, &observations, &cfg)
-        else {
-            return;
+        let mut outcome = BundleOutcome {
+            keyframes: keyframes.iter().filter(|k| !k.fixed).count(),
+            landmarks: lms.len(),
+            observations: observations.len(),
+            outliers: 0,
+            initial_cost: result.initial_cost,
+            final_cost: result.final_cost,
+            iterations: result.iterations,
         };
-        self.stats.local_ba_runs += 1;
         for (ki, &k) in kf_ids.iter().enumerate() {
             if !keyframes[ki].fixed {
                 self.map.keyframes[k as usize].world_from_body = result.keyframes[ki];
@@ -935,14 +1038,34 @@ impl Tracker {
         for (&(id, at), &outlier) in obs_refs.iter().zip(&result.outliers) {
             if outlier {
                 self.map.remove_observation(id, at);
-                self.stats.local_ba_outliers += 1;
+                outcome.outliers += 1;
             }
         }
+        Some(outcome)
     }
 }
 
+/// What one bundle adjustment of the map did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BundleOutcome {
+    /// Keyframes optimized (not held fixed).
+    pub keyframes: usize,
+    /// Landmarks optimized.
+    pub landmarks: usize,
+    /// Observations in the problem.
+    pub observations: usize,
+    /// Observations unlinked as outliers.
+    pub outliers: usize,
+    /// Cost before and after.
+    pub initial_cost: f64,
+    /// Cost after.
+    pub final_cost: f64,
+    /// Iterations run.
+    pub iterations: usize,
+}
+
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
     use crate::slam::bench::synthetic_rig;
@@ -952,12 +1075,12 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
-    const BASELINE_M: f64 = 0.12;
+    pub const BASELINE_M: f64 = 0.12;
     const RATE_HZ: f64 = 15.0;
 
     /// Landmarks on two canopy walls 1.25 m either side of the path and on the ground,
     /// each with a random descriptor.
-    fn world(rng: &mut ChaCha8Rng) -> Vec<(Vector3<f64>, Descriptor)> {
+    pub fn world(rng: &mut ChaCha8Rng) -> Vec<(Vector3<f64>, Descriptor)> {
         (0..6000)
             .map(|i| {
                 let x = rng.random_range(-8.0..30.0);
@@ -992,7 +1115,7 @@ mod tests {
 
     /// What camera `cam` sees from `world_from_body`: keypoints at the projections (with
     /// pixel noise and a few flipped descriptor bits), stereo matches below 40 baselines.
-    fn observe(
+    pub fn observe(
         cam: &RigCamera,
         world_from_body: &Isometry3<f64>,
         landmarks: &[(Vector3<f64>, Descriptor)],

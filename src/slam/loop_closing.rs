@@ -1,0 +1,660 @@
+//! Loop closure at AprilTags (Kokas et al., "Loop closure"): the side camera's tag
+//! sightings, placed in the map through the tracked pose at their stamp.
+//!
+//! The first usable sighting of a tag **registers** it: its pose is stored relative to the
+//! keyframe of that moment (`keyframe_from_tag`), so it moves with every later correction
+//! of that keyframe. A sighting after the robot has travelled at least `min_path_m` (along
+//! the keyframes) since the registration, or since the last loop at that tag, is a
+//! **loop**: the registered tag and the current view of it say where the current keyframe
+//! is, relative to the registration keyframe. That relative pose is a loop edge of a
+//! pose graph over all keyframes (consecutive keyframes joined by their current relative
+//! poses), whose solution moves every keyframe; each landmark moves with the keyframe that
+//! created it; both keyframes of the loop are anchored; then global BA refines all
+//! keyframes and landmarks, and tracking also searches the matched place's landmarks for
+//! a while, so the two passes share landmarks. A tag's identity is unambiguous, so no
+//! appearance check is needed: a sighting is only accepted when the tag is close enough
+//! and its pose fits its corners ([`super::tags::TagConfig`]).
+//!
+//! A registered tag never fixes the SLAM's `world` to a surveyed one: the SLAM's world is
+//! its first body pose, and tags with surveyed poses would need that alignment first.
+
+use super::pose_graph::{PoseGraph, PoseGraphConfig, PoseGraphEdge};
+use super::tags::TagSighting;
+use super::tracking::{BundleOutcome, Tracker};
+use super::{ConfigError, check};
+use nalgebra::{Isometry3, Matrix6, UnitQuaternion, Vector3, Vector6};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use vinebench_msgs::Nanos;
+
+/// `[slam.loop_closure]` of a scenario.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LoopConfig {
+    /// How loops are found: `tags` (the side camera's AprilTags, see `[slam.tags]`) or
+    /// `none`.
+    pub method: LoopMethod,
+    /// Path length along the keyframes since a tag's registration (or its last loop)
+    /// before a sighting of it closes a loop, m.
+    pub min_path_m: f64,
+    /// Largest gap between the two tracked frames a sighting's stamp is interpolated
+    /// between, s.
+    pub max_pose_gap_s: f64,
+    /// Standard deviation of the relative pose of consecutive keyframes in the pose
+    /// graph: translation, m.
+    pub odometry_sigma_m: f64,
+    /// The same, rotation, rad.
+    pub odometry_sigma_rad: f64,
+    /// Corner noise of a tag sighting, px: the loop edge's information is propagated
+    /// from both sightings' corner geometry with it.
+    pub tag_corner_sigma_px: f64,
+    /// Standard deviation added to a tag loop edge on top of the propagated one (tag
+    /// placement, pose interpolation), or its whole uncertainty when none is known:
+    /// translation, m.
+    pub tag_sigma_m: f64,
+    /// The same, rotation, rad.
+    pub tag_sigma_rad: f64,
+    /// Run global BA after the pose graph.
+    pub global_ba: bool,
+    /// Iterations of its robust round.
+    pub global_ba_iterations: usize,
+}
+
+impl Default for LoopConfig {
+    fn default() -> Self {
+        LoopConfig {
+            method: LoopMethod::Tags,
+            min_path_m: 5.0,
+            max_pose_gap_s: 0.25,
+            odometry_sigma_m: 0.01,
+            odometry_sigma_rad: 0.005,
+            tag_corner_sigma_px: 0.3,
+            tag_sigma_m: 0.002,
+            tag_sigma_rad: 0.002,
+            global_ba: true,
+            global_ba_iterations: 30,
+        }
+    }
+}
+
+impl LoopConfig {
+    /// Checks every range.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        check(
+            self.min_path_m.is_finite() && self.min_path_m >= 0.0,
+            "slam.loop_closure.min_path_m must be a non-negative number",
+        )?;
+        check(
+            positive(self.max_pose_gap_s),
+            "slam.loop_closure.max_pose_gap_s must be positive",
+        )?;
+        for (v, name) in [
+            (self.odometry_sigma_m, "odometry_sigma_m"),
+            (self.odometry_sigma_rad, "odometry_sigma_rad"),
+            (self.tag_sigma_m, "tag_sigma_m"),
+            (self.tag_corner_sigma_px, "tag_corner_sigma_px"),
+            (self.tag_sigma_rad, "tag_sigma_rad"),
+        ] {
+            check(
+                positive(v),
+                &format!("slam.loop_closure.{name} must be positive"),
+            )?;
+        }
+        check(
+            (1..=500).contains(&self.global_ba_iterations),
+            "slam.loop_closure.global_ba_iterations must be in [1, 500]",
+        )
+    }
+}
+
+/// How a SLAM finds loops.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LoopMethod {
+    /// No loop closure (odometry only).
+    None,
+    /// AprilTags seen again by the tag camera.
+    Tags,
+}
+
+/// What found a loop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LoopSource {
+    /// A registered AprilTag seen again.
+    Tag,
+    /// Bag-of-words place recognition.
+    Bow,
+}
+
+impl LoopSource {
+    /// Its name in `loops.csv`.
+    pub fn name(self) -> &'static str {
+        match self {
+            LoopSource::Tag => "tag",
+            LoopSource::Bow => "bow",
+        }
+    }
+}
+
+/// One accepted loop closure.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoopClosure {
+    /// When the place was recognized (the sighting's stamp).
+    pub query_stamp: Nanos,
+    /// When the matched place was seen before (the registering sighting's stamp).
+    pub matched_stamp: Nanos,
+    /// What found it.
+    pub source: LoopSource,
+    /// The tag, for a tag loop.
+    pub tag_id: Option<u32>,
+    /// The current keyframe and the matched one.
+    pub query_keyframe: u32,
+    /// The keyframe of the matched place.
+    pub matched_keyframe: u32,
+    /// How far the loop moved the current keyframe, m.
+    pub correction_m: f64,
+    /// How far it turned it, deg.
+    pub correction_deg: f64,
+    /// Pose-graph cost before and after.
+    pub pose_graph_cost: (f64, f64),
+    /// The global BA that followed, if any ran.
+    pub global_ba: Option<BundleOutcome>,
+    /// Wall-clock seconds spent closing it (for the report, never for results).
+    pub wall_s: f64,
+}
+
+/// A registered tag.
+#[derive(Clone, Debug)]
+struct TagRecord {
+    keyframe: u32,
+    keyframe_from_camera: Isometry3<f64>,
+    camera_from_tag: Isometry3<f64>,
+    /// Covariance of the sighting's `camera_from_tag` over `(δω, δt)`, if known.
+    covariance: Option<Matrix6<f64>>,
+    stamp: Nanos,
+    /// Path length at the registration or the last loop, m.
+    path_m: f64,
+}
+
+/// Counters of the tag loop closer.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct LoopStats {
+    /// Sightings used (tracked pose available).
+    pub sightings: usize,
+    /// Sightings dropped because no tracked pose was known at their stamp.
+    pub sightings_without_pose: usize,
+    /// Tags registered.
+    pub tags_registered: usize,
+}
+
+/// Registers tags and closes loops at them (see the module docs).
+#[derive(Clone, Debug)]
+pub struct TagLoopCloser {
+    cfg: LoopConfig,
+    tags: BTreeMap<u32, TagRecord>,
+    loops: Vec<LoopClosure>,
+    stats: LoopStats,
+}
+
+impl TagLoopCloser {
+    /// A loop closer with a validated `cfg`.
+    pub fn new(cfg: LoopConfig) -> Result<TagLoopCloser, ConfigError> {
+        cfg.validate()?;
+        Ok(TagLoopCloser {
+            cfg,
+            tags: BTreeMap::new(),
+            loops: Vec::new(),
+            stats: LoopStats::default(),
+        })
+    }
+
+    /// Accepted loops so far.
+    pub fn loops(&self) -> &[LoopClosure] {
+        &self.loops
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> &LoopStats {
+        &self.stats
+    }
+
+    /// Takes a sighting made at `stamp` by a camera at `body_from_camera`; registers the
+    /// tag, closes a loop (returning it) or does nothing. The tracker must have tracked
+    /// past `stamp`. `covariance` is that of the sighting's `camera_from_tag` over the
+    /// perturbation `(δω, δt)` of [`super::tags::tag_pose_information`]; with it the loop
+    /// edge's information is propagated from both sightings (plus `tag_sigma_*` as a
+    /// floor), without it the edge has `tag_sigma_*` alone.
+    pub fn on_sighting(
+        &mut self,
+        tracker: &mut Tracker,
+        stamp: Nanos,
+        sighting: &TagSighting,
+        body_from_camera: &Isometry3<f64>,
+        covariance: Option<Matrix6<f64>>,
+    ) -> Option<&LoopClosure> {
+        let gap = Nanos::from_secs_f64(self.cfg.max_pose_gap_s);
+        let Some((keyframe, keyframe_from_body)) = tracker.pose_at(stamp, gap) else {
+            self.stats.sightings_without_pose += 1;
+            return None;
+        };
+        self.stats.sightings += 1;
+        let keyframe_from_camera = keyframe_from_body * body_from_camera;
+        let path_m = path_length_to(tracker, keyframe);
+        let Some(record) = self.tags.get(&sighting.id) else {
+            self.tags.insert(
+                sighting.id,
+                TagRecord {
+                    keyframe,
+                    keyframe_from_camera,
+                    camera_from_tag: sighting.camera_from_tag,
+                    covariance,
+                    stamp,
+                    path_m,
+                },
+            );
+            self.stats.tags_registered += 1;
+            return None;
+        };
+        if path_m - record.path_m < self.cfg.min_path_m {
+            return None;
+        }
+        let started = std::time::Instant::now();
+        let (a, b) = (record.keyframe, keyframe);
+        // Where the registered tag says keyframe b is, relative to keyframe a.
+        let edge = |n1: &Vector6<f64>, n2: &Vector6<f64>| {
+            (record.keyframe_from_camera * perturbed(&record.camera_from_tag, n1))
+                * (keyframe_from_camera * perturbed(&sighting.camera_from_tag, n2)).inverse()
+        };
+        let a_from_b = edge(&Vector6::zeros(), &Vector6::zeros());
+        let floor = info(self.cfg.tag_sigma_m, self.cfg.tag_sigma_rad)
+            .try_inverse()
+            .unwrap_or_else(Matrix6::zeros);
+        let tag_information = match (record.covariance, covariance) {
+            (Some(c1), Some(c2)) => edge_information(&edge, &a_from_b, &c1, &c2, &floor),
+            _ => None,
+        }
+        .unwrap_or_else(|| info(self.cfg.tag_sigma_m, self.cfg.tag_sigma_rad));
+        let matched_stamp = record.stamp;
+        let map = tracker.map_mut();
+        let before: Vec<Isometry3<f64>> = map.keyframes.iter().map(|k| k.world_from_body).collect();
+        let mut graph = PoseGraph::new(before.clone());
+        graph.fixed[0] = true;
+        let odometry = info(self.cfg.odometry_sigma_m, self.cfg.odometry_sigma_rad);
+        for i in 1..before.len() {
+            graph.add_current_edge(i - 1, i, odometry).ok()?;
+        }
+        graph.edges.push(PoseGraphEdge {
+            a: a as usize,
+            b: b as usize,
+            a_from_b,
+            information: tag_information,
+        });
+        let result = graph.optimize(&PoseGraphConfig::default()).ok()?;
+        for (kf, new) in map.keyframes.iter_mut().zip(&graph.poses) {
+            kf.world_from_body = *new;
+        }
+        for lm in map.landmarks.iter_mut().filter(|l| !l.dead) {
+            let k = lm.created_by as usize;
+            let correction = graph.poses[k] * before[k].inverse();
+            lm.position = (correction * nalgebra::Point3::from(lm.position)).coords;
+        }
+        map.keyframes[a as usize].anchored = true;
+        map.keyframes[b as usize].anchored = true;
+        let moved = graph.poses[b as usize] * before[b as usize].inverse();
+        let corrected_b = graph.poses[b as usize];
+        let correction_m =
+            (corrected_b.translation.vector - before[b as usize].translation.vector).norm();
+        let correction_deg = moved.rotation.angle().to_degrees();
+        tracker.refresh_last_pose();
+        let global_ba = if self.cfg.global_ba {
+            tracker.global_bundle_adjustment(self.cfg.global_ba_iterations)
+        } else {
+            None
+        };
+        tracker.open_loop_window(a);
+        if let Some(r) = self.tags.get_mut(&sighting.id) {
+            r.path_m = path_m;
+        }
+        self.loops.push(LoopClosure {
+            query_stamp: stamp,
+            matched_stamp,
+            source: LoopSource::Tag,
+            tag_id: Some(sighting.id),
+            query_keyframe: b,
+            matched_keyframe: a,
+            correction_m,
+            correction_deg,
+            pose_graph_cost: (result.initial_cost, result.final_cost),
+            global_ba,
+            wall_s: started.elapsed().as_secs_f64(),
+        });
+        self.loops.last()
+    }
+}
+
+/// A diagonal information matrix (translation, then rotation) from standard deviations.
+fn info(sigma_m: f64, sigma_rad: f64) -> Matrix6<f64> {
+    let t = 1.0 / (sigma_m * sigma_m);
+    let r = 1.0 / (sigma_rad * sigma_rad);
+    Matrix6::from_diagonal(&Vector6::new(t, t, t, r, r, r))
+}
+
+/// `camera_from_tag` perturbed by `n = (δω, δt)` as in
+/// [`super::tags::tag_pose_information`]: `(Exp(δω)·R, t + δt)`.
+fn perturbed(camera_from_tag: &Isometry3<f64>, n: &Vector6<f64>) -> Isometry3<f64> {
+    let dw = Vector3::new(n[0], n[1], n[2]);
+    let dt = Vector3::new(n[3], n[4], n[5]);
+    Isometry3::from_parts(
+        (camera_from_tag.translation.vector + dt).into(),
+        UnitQuaternion::from_scaled_axis(dw) * camera_from_tag.rotation,
+    )
+}
+
+/// The information of a loop edge `edge(n1, n2)` (nominal `z`) over the pose graph's
+/// error `(t_E, Log R_E)` of `E = z⁻¹·edge(n1, n2)`, from the covariances of the two
+/// sightings' noises `n1`, `n2` (first order, central differences), plus `floor`.
+fn edge_information(
+    edge: &impl Fn(&Vector6<f64>, &Vector6<f64>) -> Isometry3<f64>,
+    z: &Isometry3<f64>,
+    c1: &Matrix6<f64>,
+    c2: &Matrix6<f64>,
+    floor: &Matrix6<f64>,
+) -> Option<Matrix6<f64>> {
+    let error = |e: Isometry3<f64>| {
+        let d = z.inverse() * e;
+        let w = d.rotation.scaled_axis();
+        Vector6::new(
+            d.translation.x,
+            d.translation.y,
+            d.translation.z,
+            w.x,
+            w.y,
+            w.z,
+        )
+    };
+    let h = 1e-6;
+    let mut j1 = Matrix6::zeros();
+    let mut j2 = Matrix6::zeros();
+    for k in 0..6 {
+        let mut n = Vector6::zeros();
+        n[k] = h;
+        let z0 = Vector6::zeros();
+        j1.set_column(
+            k,
+            &((error(edge(&n, &z0)) - error(edge(&(-n), &z0))) / (2.0 * h)),
+        );
+        j2.set_column(
+            k,
+            &((error(edge(&z0, &n)) - error(edge(&z0, &(-n)))) / (2.0 * h)),
+        );
+    }
+    let cov = j1 * c1 * j1.transpose() + j2 * c2 * j2.transpose() + floor;
+    let cov = (cov + cov.transpose()) * 0.5;
+    cov.try_inverse()
+        .filter(|m| m.iter().all(|v| v.is_finite()))
+}
+
+/// Path length along the keyframe positions from the first keyframe to `k`, m.
+fn path_length_to(tracker: &Tracker, k: u32) -> f64 {
+    tracker.map().keyframes[..=k as usize]
+        .windows(2)
+        .map(|w| {
+            (w[1].world_from_body.translation.vector - w[0].world_from_body.translation.vector)
+                .norm()
+        })
+        .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+    use crate::slam::bench::synthetic_rig;
+    use crate::slam::frontend::StereoFrame;
+    use crate::slam::orb::OrbConfig;
+    use crate::slam::tracking::tests::{BASELINE_M, observe, world};
+    use crate::slam::tracking::{CameraInput, TrackerCamera, TrackingConfig};
+    use nalgebra::{Point3, Translation3, UnitQuaternion};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    const RATE_HZ: f64 = 15.0;
+
+    /// 0.5 m/s forward along x for 8 s, then backward to the start (same heading).
+    fn truth(t: f64) -> Isometry3<f64> {
+        let x = if t <= 8.0 {
+            0.5 * t
+        } else {
+            4.0 - 0.5 * (t - 8.0)
+        };
+        Isometry3::from_parts(
+            Translation3::new(x, 0.05 * (0.5 * t).sin(), 0.0),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 0.03 * (0.5 * t).cos()),
+        )
+    }
+
+    /// The truth in the SLAM's world (the body at the first frame).
+    fn slam_truth(t: f64) -> Isometry3<f64> {
+        truth(0.0).inverse() * truth(t)
+    }
+
+    /// A side camera looking right (body -y), optical frame x right, y down, z forward.
+    fn body_from_side_camera() -> Isometry3<f64> {
+        let r = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::new(
+            -1.0, 0.0, 0.0, //
+            0.0, 0.0, -1.0, //
+            0.0, -1.0, 0.0,
+        ));
+        Isometry3::from_parts(
+            Translation3::new(0.0, -0.2, 0.3),
+            UnitQuaternion::from_rotation_matrix(&r),
+        )
+    }
+
+    /// The tag 1 m to the right of the path at x = 0.5, facing the path.
+    fn world_from_tag() -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::new(0.5, -1.0, 0.6),
+            UnitQuaternion::from_euler_angles(-std::f64::consts::FRAC_PI_2, 0.0, 0.0),
+        )
+    }
+
+    fn sighting(t: f64) -> TagSighting {
+        let camera_from_tag = (truth(t) * body_from_side_camera()).inverse() * world_from_tag();
+        TagSighting {
+            id: 3,
+            camera_from_tag,
+            corners_px: [[0.0; 2]; 4],
+            reprojection_rms_px: 0.1,
+            decision_margin: 100.0,
+            hamming: 0,
+        }
+    }
+
+    fn rmse(tracker: &Tracker) -> f64 {
+        let traj = tracker.trajectory();
+        let se: f64 = traj
+            .iter()
+            .map(|(t, p)| {
+                let e = slam_truth(t.as_secs_f64()).translation.vector - p.translation.vector;
+                e.norm_squared()
+            })
+            .sum();
+        (se / traj.len() as f64).sqrt()
+    }
+
+    #[test]
+    fn a_tag_seen_again_takes_out_an_injected_drift() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let landmarks = world(&mut rng);
+        let full = synthetic_rig();
+        let rig: Vec<TrackerCamera> = (0..2)
+            .map(|c| TrackerCamera {
+                camera: full[c].clone(),
+                baseline_m: BASELINE_M,
+            })
+            .collect();
+        let mut tracker =
+            Tracker::new(TrackingConfig::default(), &OrbConfig::default(), rig).unwrap();
+        let mut closer = TagLoopCloser::new(LoopConfig::default()).unwrap();
+        let (t_first, t_again) = (1.0, 15.0);
+        let n = (15.2 * RATE_HZ) as i64;
+        for i in 0..n {
+            let t = i as f64 / RATE_HZ;
+            let frames: Vec<StereoFrame> = (0..2)
+                .map(|c| observe(&full[c], &truth(t), &landmarks, &mut rng))
+                .collect();
+            let inputs: Vec<CameraInput> = frames
+                .iter()
+                .enumerate()
+                .map(|(camera, features)| CameraInput {
+                    camera,
+                    stamp: Nanos::from_secs_f64(t),
+                    features,
+                })
+                .collect();
+            tracker.track(Nanos::from_secs_f64(t), &inputs);
+            if (t - (t_first + 0.1)).abs() < 0.5 / RATE_HZ {
+                let r = closer.on_sighting(
+                    &mut tracker,
+                    Nanos::from_secs_f64(t_first),
+                    &sighting(t_first),
+                    &body_from_side_camera(),
+                    None,
+                );
+                assert!(r.is_none(), "the first sighting registers the tag");
+            }
+        }
+        assert_eq!(closer.stats().tags_registered, 1);
+        let clean = rmse(&tracker);
+        // Drift, growing along the keyframes up to 8 cm and 1.5 deg of yaw at the end;
+        // each landmark drifts with the keyframe that created it.
+        let map = tracker.map_mut();
+        let n_kf = map.keyframes.len();
+        let drift = |k: usize| {
+            let f = k as f64 / (n_kf - 1) as f64;
+            Isometry3::from_parts(
+                Translation3::new(0.03 * f, 0.07 * f, 0.01 * f),
+                UnitQuaternion::from_euler_angles(0.0, 0.0, 0.026 * f),
+            )
+        };
+        for (k, kf) in map.keyframes.iter_mut().enumerate() {
+            kf.world_from_body = drift(k) * kf.world_from_body;
+        }
+        for lm in map.landmarks.iter_mut() {
+            lm.position = (drift(lm.created_by as usize) * Point3::from(lm.position)).coords;
+        }
+        tracker.refresh_last_pose();
+        let drifted = rmse(&tracker);
+        let end = Nanos::from_secs_f64(t_again);
+        let end_error = |tracker: &Tracker| {
+            let (k, kf_from_body) = tracker.pose_at(end, Nanos::from_secs_f64(0.2)).unwrap();
+            let p = tracker.map().keyframes[k as usize].world_from_body * kf_from_body;
+            (p.translation.vector - slam_truth(t_again).translation.vector).norm()
+        };
+        let end_before = end_error(&tracker);
+        let closure = closer
+            .on_sighting(
+                &mut tracker,
+                end,
+                &sighting(t_again),
+                &body_from_side_camera(),
+                None,
+            )
+            .cloned()
+            .expect("a loop at the tag seen again");
+        let end_after = end_error(&tracker);
+        let corrected = rmse(&tracker);
+        println!(
+            "rmse clean {clean:.4} m, drifted {drifted:.4}, corrected {corrected:.4}; end error \
+             {end_before:.4} -> {end_after:.4} m; {closure:?}"
+        );
+        assert_eq!(closure.source, LoopSource::Tag);
+        assert_eq!(closure.tag_id, Some(3));
+        assert_eq!(closure.matched_stamp, Nanos::from_secs_f64(t_first));
+        assert!(end_before > 0.06, "{end_before}");
+        assert!(end_after < 0.01, "end error after the loop {end_after}");
+        assert!(corrected < 0.25 * drifted, "rmse {drifted} -> {corrected}");
+        assert!(closure.global_ba.is_some());
+        // A second sighting right after is no new loop (not min_path_m travelled).
+        assert!(
+            closer
+                .on_sighting(
+                    &mut tracker,
+                    end,
+                    &sighting(t_again),
+                    &body_from_side_camera(),
+                    None,
+                )
+                .is_none()
+        );
+        assert_eq!(closer.loops().len(), 1);
+    }
+
+    #[test]
+    fn loop_edge_information_matches_a_monte_carlo_covariance() {
+        use rand_distr::{Distribution, StandardNormal};
+        let kf_a_from_cam = Isometry3::from_parts(
+            Translation3::new(0.1, -0.2, 0.3),
+            UnitQuaternion::from_euler_angles(-1.5, 0.1, -1.6),
+        );
+        let kf_b_from_cam = Isometry3::from_parts(
+            Translation3::new(-0.2, 0.1, 0.35),
+            UnitQuaternion::from_euler_angles(-1.6, -0.05, -1.5),
+        );
+        let cam1_from_tag = Isometry3::from_parts(
+            Translation3::new(0.1, 0.05, 0.9),
+            UnitQuaternion::from_euler_angles(0.2, -0.3, 0.1),
+        );
+        let cam2_from_tag = Isometry3::from_parts(
+            Translation3::new(-0.2, 0.0, 1.3),
+            UnitQuaternion::from_euler_angles(-0.1, 0.4, 0.05),
+        );
+        let edge = |n1: &Vector6<f64>, n2: &Vector6<f64>| {
+            (kf_a_from_cam * perturbed(&cam1_from_tag, n1))
+                * (kf_b_from_cam * perturbed(&cam2_from_tag, n2)).inverse()
+        };
+        let z = edge(&Vector6::zeros(), &Vector6::zeros());
+        // Sighting covariances: a few mrad and mm, correlated.
+        let l1 = nalgebra::Matrix6::from_fn(|i, j| {
+            if i == j {
+                [3e-3, 2e-3, 1e-3, 2e-3, 1e-3, 4e-3][i]
+            } else if i > j {
+                5e-4
+            } else {
+                0.0
+            }
+        });
+        let l2 = l1 * 1.5;
+        let (c1, c2) = (l1 * l1.transpose(), l2 * l2.transpose());
+        let information =
+            edge_information(&edge, &z, &c1, &c2, &Matrix6::zeros()).expect("invertible");
+        let predicted = information.try_inverse().unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut draw = |l: &Matrix6<f64>| {
+            let g = Vector6::from_fn(|_, _| StandardNormal.sample(&mut rng));
+            l * g
+        };
+        let n = 40_000;
+        let mut cov = Matrix6::zeros();
+        for _ in 0..n {
+            let (n1, n2) = (draw(&l1), draw(&l2));
+            let d = z.inverse() * edge(&n1, &n2);
+            let w = d.rotation.scaled_axis();
+            let e = Vector6::new(
+                d.translation.x,
+                d.translation.y,
+                d.translation.z,
+                w.x,
+                w.y,
+                w.z,
+            );
+            cov += e * e.transpose();
+        }
+        cov /= n as f64;
+        let rel = (cov - predicted).norm() / predicted.norm();
+        assert!(rel < 0.05, "relative difference {rel}\n{cov}\n{predicted}");
+    }
+}
