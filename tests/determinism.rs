@@ -25,15 +25,20 @@ const DETERMINISTIC: &[&str] = &[
     "altitude.svg",
 ];
 
-fn run(threads: &str, out: &Path) {
-    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/short-loop.toml");
+/// Runs `scenario` on `threads` worker threads into `out`; it must pass.
+fn run_scenario(scenario: &Path, threads: &str, out: &Path) {
     Command::cargo_bin("vinebench")
         .unwrap()
         .args(["--threads", threads, "run", "--quiet", "--out"])
         .arg(out)
-        .arg(&scenario)
+        .arg(scenario)
         .assert()
         .code(0);
+}
+
+fn run(threads: &str, out: &Path) {
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/short-loop.toml");
+    run_scenario(&scenario, threads, out);
 }
 
 #[test]
@@ -98,18 +103,9 @@ fn slam_runs_are_bit_identical_across_thread_counts() {
     let dir = tempfile::tempdir().unwrap();
     let scenario = dir.path().join("csl-short.toml");
     std::fs::write(&scenario, short).unwrap();
-    let run = |threads: &str, out: &Path| {
-        Command::cargo_bin("vinebench")
-            .unwrap()
-            .args(["--threads", threads, "run", "--quiet", "--out"])
-            .arg(out)
-            .arg(&scenario)
-            .assert()
-            .code(0);
-    };
     let (a, b) = (dir.path().join("a"), dir.path().join("b"));
-    run("1", &a);
-    run("2", &b);
+    run_scenario(&scenario, "1", &a);
+    run_scenario(&scenario, "2", &b);
     for f in [
         "estimate_slam.tum",
         "estimate_slam_single_camera.tum",

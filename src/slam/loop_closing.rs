@@ -18,7 +18,7 @@
 //! A registered tag never fixes the SLAM's `world` to a surveyed one: the SLAM's world is
 //! its first body pose, and tags with surveyed poses would need that alignment first.
 
-use super::pose_graph::{PoseGraph, PoseGraphConfig, PoseGraphEdge};
+use super::pose_graph::{PoseGraph, PoseGraphConfig, PoseGraphEdge, relative_error};
 use super::tags::TagSighting;
 use super::tracking::{BundleOutcome, Tracker};
 use super::{ConfigError, check};
@@ -362,18 +362,7 @@ fn edge_information(
     c2: &Matrix6<f64>,
     floor: &Matrix6<f64>,
 ) -> Option<Matrix6<f64>> {
-    let error = |e: Isometry3<f64>| {
-        let d = z.inverse() * e;
-        let w = d.rotation.scaled_axis();
-        Vector6::new(
-            d.translation.x,
-            d.translation.y,
-            d.translation.z,
-            w.x,
-            w.y,
-            w.z,
-        )
-    };
+    let error = |e: Isometry3<f64>| relative_error(z, &e);
     let h = 1e-6;
     let mut j1 = Matrix6::zeros();
     let mut j2 = Matrix6::zeros();
@@ -641,16 +630,7 @@ mod tests {
         let mut cov = Matrix6::zeros();
         for _ in 0..n {
             let (n1, n2) = (draw(&l1), draw(&l2));
-            let d = z.inverse() * edge(&n1, &n2);
-            let w = d.rotation.scaled_axis();
-            let e = Vector6::new(
-                d.translation.x,
-                d.translation.y,
-                d.translation.z,
-                w.x,
-                w.y,
-                w.z,
-            );
+            let e = relative_error(&z, &edge(&n1, &n2));
             cov += e * e.transpose();
         }
         cov /= n as f64;

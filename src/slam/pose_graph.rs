@@ -607,6 +607,20 @@ fn retract(pose: &Isometry3<f64>, delta: &Vector6<f64>) -> Isometry3<f64> {
     out
 }
 
+/// The error of an edge measuring `a_from_b` when the poses give `actual`:
+/// `e = (t_E, Log(R_E))` of `E = a_from_b⁻¹ · actual` (translation, then rotation), the
+/// tangent in which [`PoseGraphEdge::information`] is expressed.
+pub fn relative_error(a_from_b: &Isometry3<f64>, actual: &Isometry3<f64>) -> Vector6<f64> {
+    error_vector(&a_from_b.inv_mul(actual))
+}
+
+/// `(t_E, Log(R_E))` of `E`.
+fn error_vector(err: &Isometry3<f64>) -> Vector6<f64> {
+    let t = err.translation.vector;
+    let r = so3_log(&err.rotation);
+    Vector6::new(t.x, t.y, t.z, r.x, r.y, r.z)
+}
+
 /// `E = Z⁻¹ T_a⁻¹ T_b` and `e = (t_E, Log(R_E))`.
 fn edge_error(
     world_from_a: &Isometry3<f64>,
@@ -614,9 +628,7 @@ fn edge_error(
     a_from_b: &Isometry3<f64>,
 ) -> (Isometry3<f64>, Vector6<f64>) {
     let err = a_from_b.inv_mul(&world_from_a.inv_mul(world_from_b));
-    let t = err.translation.vector;
-    let r = so3_log(&err.rotation);
-    (err, Vector6::new(t.x, t.y, t.z, r.x, r.y, r.z))
+    (err, error_vector(&err))
 }
 
 /// The error and its Jacobians `∂e/∂δ_a`, `∂e/∂δ_b` (module docs).
