@@ -234,16 +234,11 @@ impl TagCamera {
         1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
     }
 
-    /// Distorts an ideal normalised point: `(x, y) ↦ (x_d, y_d)`.
+    /// Distorts an ideal normalised point: `(x, y) ↦ (x_d, y_d)` (the mapper's plumb-bob
+    /// model, [`crate::mapper::camera::distort`]).
     pub fn distort(&self, p: &Vector2<f64>) -> Vector2<f64> {
-        let [_, _, p1, p2, _] = self.d;
-        let (x, y) = (p.x, p.y);
-        let r2 = x * x + y * y;
-        let radial = self.radial(r2);
-        Vector2::new(
-            x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
-            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
-        )
+        let (x, y) = crate::mapper::camera::distort(&self.d, p.x, p.y);
+        Vector2::new(x, y)
     }
 
     /// Jacobian `∂(x_d, y_d)/∂(x, y)` of [`TagCamera::distort`] at `p`.
