@@ -530,6 +530,22 @@ fn slam_from_scenario(
                 .into());
         }
     }
+    let tag_camera = &s.slam.tags.camera;
+    if s.slam.uses_tags()
+        && s.slam.tags.enabled
+        && !s.sensors.cameras.iter().any(|c| &c.name == tag_camera)
+    {
+        return Err(sc
+            .field_error(
+                "slam.tags.camera",
+                format!(
+                    "expected the name of a camera of [[sensors.cameras]] (the tag camera), found \
+                     \"{tag_camera}\" (no camera of that name); add it, or set \
+                     slam.loop_closure.method = \"none\""
+                ),
+            )
+            .into());
+    }
     s.slam
         .runs()
         .into_iter()

@@ -240,3 +240,33 @@ fn detection_time_per_1080p_frame() {
         );
     }
 }
+
+/// A scenario whose SLAM closes loops at tags needs its tag camera; without it, the error
+/// names the key and the way out.
+#[test]
+fn a_missing_tag_camera_is_an_error_naming_the_key() {
+    let scenario = |extra: &str| {
+        format!(
+            "[world.rows]\ncount = 3\nlength_m = 4.0\n[robot]\nmodel = \"mecanum-rover\"\n[sensors.tracking_camera]\nframe = \"front_camera_link\"\n\
+             [slam]\nenabled = true\ncameras = [\"front\"]\n{extra}\n\
+             [[sensors.cameras]]\nname = \"front\"\nprofile = \"zed2i\"\n\
+             frame = \"front_camera_left_optical_frame\"\n\
+             right_frame = \"front_camera_right_optical_frame\"\nwidth = 376\nheight = 240\n"
+        )
+    };
+    let sc = vinebench::scenario::LoadedScenario::from_str(&scenario(""), "x.toml").unwrap();
+    let e = vinebench::runner::setup(&sc)
+        .err()
+        .expect("no side camera")
+        .to_string();
+    assert!(
+        e.contains("slam.tags.camera") && e.contains("\"side\"") && e.contains("method"),
+        "{e}"
+    );
+    let sc = vinebench::scenario::LoadedScenario::from_str(
+        &scenario("[slam.loop_closure]\nmethod = \"none\"\n"),
+        "x.toml",
+    )
+    .unwrap();
+    assert!(vinebench::runner::setup(&sc).is_ok());
+}

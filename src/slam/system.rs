@@ -73,24 +73,20 @@ impl SlamBaseline {
 
     /// `cfg` turned into this baseline.
     pub fn config(self, cfg: &SlamConfig) -> SlamConfig {
+        let no_loops = SlamConfig {
+            baselines: Vec::new(),
+            loop_closure: LoopConfig {
+                method: LoopMethod::None,
+                ..cfg.loop_closure.clone()
+            },
+            ..cfg.clone()
+        };
         match self {
             SlamBaseline::SingleCamera => SlamConfig {
                 cameras: cfg.cameras.iter().take(1).cloned().collect(),
-                baselines: Vec::new(),
-                loop_closure: LoopConfig {
-                    method: LoopMethod::None,
-                    ..cfg.loop_closure.clone()
-                },
-                ..cfg.clone()
+                ..no_loops
             },
-            SlamBaseline::NoLoops => SlamConfig {
-                baselines: Vec::new(),
-                loop_closure: LoopConfig {
-                    method: LoopMethod::None,
-                    ..cfg.loop_closure.clone()
-                },
-                ..cfg.clone()
-            },
+            SlamBaseline::NoLoops => no_loops,
         }
     }
 }
@@ -232,7 +228,7 @@ pub struct SlamOutput {
     pub loops: Vec<LoopClosure>,
     /// Loop-closer counters.
     pub loop_stats: LoopStats,
-    /// Tag-camera images processed and tags detected in them.
+    /// Tag-camera images searched for tags.
     pub tag_images: usize,
     /// Tag detections accepted.
     pub tag_detections: usize,
