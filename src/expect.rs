@@ -158,6 +158,14 @@ pub const SLAM_METRICS: &[(&str, &str)] = &[
         "ground-truth revisit episodes with a loop / revisit episodes (undefined without revisits)",
     ),
     ("revisits", "ground-truth revisit episodes of the run"),
+    (
+        "bow_candidates",
+        "loop candidates bag of words reported, before the geometric check (loop_closure.method = \"bow\" only)",
+    ),
+    (
+        "bow_rejected",
+        "bag-of-words candidates the geometric check rejected (loop_closure.method = \"bow\" only)",
+    ),
 ];
 
 /// The pseudo-source of the robot's own run (ground truth against its route).

@@ -16,6 +16,8 @@
 //! - [`mapper`]: geo-referenced RGB-D map, GRVI, elevation, Ball-Pivoting mesh, exports
 //!   (behind the ground-truth firewall); [`mapping`] runs it in a scenario and scores it.
 //! - [`slam`]: stereo visual SLAM, so far its ORB/SSC/stereo front-end (behind the firewall).
+//! - [`vocabulary`]: the SLAM's bag-of-words vocabulary trained on the keyframes of a
+//!   simulated scenario (`vinebench vocabulary`).
 
 pub mod bench;
 pub mod bench_mapper;
@@ -32,3 +34,4 @@ pub mod runner;
 pub mod scenario;
 pub mod scoring;
 pub mod slam;
+pub mod vocabulary;

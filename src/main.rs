@@ -2,6 +2,8 @@
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -41,6 +43,7 @@ const EXIT_INTERRUPTED: u8 = 130;
         vinebench defaults > my-scenario.toml                  every key with its default\n  \
         vinebench score --ref runs/x/ground_truth.tum runs/x/estimate_eif.tum --align\n  \
         vinebench replay runs/x/recording.mcap                 estimators on a recording\n  \
+        vinebench vocabulary scenarios/vocabularies/training.toml --out my.vbvoc\n  \
         vinebench bench                                        speed figures for docs/PERFORMANCE.md"
 )]
 struct Cli {
@@ -126,6 +129,35 @@ enum Command {
         vinebench score --ref ground_truth.tum estimate_eif.tum --align\n\
         equals: evo_ape tum ground_truth.tum estimate_eif.tum --t_max_diff 0.01 -a")]
     Score(ScoreArgs),
+    /// Train the visual SLAM's bag-of-words vocabulary on the keyframes of a simulated
+    /// scenario.
+    #[command(after_help = "Examples:\n  \
+        vinebench vocabulary scenarios/vocabularies/training.toml --out vineyard.vbvoc\n  \
+        vinebench vocabulary scenarios/csl-box-occluder.toml --out /tmp/csl.vbvoc --depth 3 --quiet\n\n\
+        The scenario runs with its visual SLAM on (the stereo cameras of slam.cameras; no \
+        baselines, no loop closure, no mapper; nothing scored, no run folder). Every \
+        keyframe's ORB descriptors, all cameras together, make one training image. The \
+        vocabulary is DBoW2's: a k-medians tree of branching K and depth L (at most K^L \
+        words; keep K^L well below the number of descriptors) with idf weights over the \
+        keyframes. The file (format VBVOC1, read by slam::bow::Vocabulary::read) goes \
+        through a temporary file beside it, so a reader never sees half a file; its folder \
+        is created. Exit code: 0 written, 2 bad input or no keyframe.")]
+    Vocabulary {
+        /// Scenario file (with the stereo cameras of slam.cameras in [[sensors.cameras]]).
+        scenario: PathBuf,
+        /// Vocabulary file to write (`.vbvoc`).
+        #[arg(long, value_name = "FILE")]
+        out: PathBuf,
+        /// Branching factor K: clusters per node of the tree.
+        #[arg(long, value_name = "K", default_value_t = vinebench::vocabulary::DEFAULT_BRANCHING)]
+        branching: usize,
+        /// Depth L: levels of the tree below its root.
+        #[arg(long, value_name = "L", default_value_t = vinebench::vocabulary::DEFAULT_DEPTH)]
+        depth: usize,
+        /// No progress bar and no summary.
+        #[arg(long)]
+        quiet: bool,
+    },
     /// Measure speed: EIF, physics, ray casting, rendering and real-time factors.
     Bench {
         /// Fewer repetitions (a quick look, noisier figures).
@@ -268,6 +300,13 @@ fn dispatch(cmd: Command) -> Result<u8> {
             print_verdict(&r.expectations, r.passed, &o.dir);
             Ok(if r.passed { EXIT_PASS } else { EXIT_FAIL })
         }
+        Command::Vocabulary {
+            scenario,
+            out,
+            branching,
+            depth,
+            quiet,
+        } => vocabulary(&scenario, &out, branching, depth, quiet),
         Command::Bench { quick, only } => {
             eprintln!("measuring (about {} s)...", if quick { 60 } else { 240 });
             let mut figures = Vec::new();
@@ -494,6 +533,88 @@ fn check(paths: &[PathBuf], runs: &Path, shard: Option<&str>) -> Result<u8> {
         println!("{r}");
     }
     Ok(worst)
+}
+
+/// `vinebench vocabulary`: simulate, train, write atomically, summarise.
+fn vocabulary(
+    scenario: &Path,
+    out: &Path,
+    branching: usize,
+    depth: usize,
+    quiet: bool,
+) -> Result<u8> {
+    use vinebench::slam::bow::VocabularyConfig;
+    use vinebench::vocabulary as voc;
+    let cfg = VocabularyConfig {
+        branching,
+        depth,
+        ..VocabularyConfig::default()
+    };
+    // Bad settings fail before minutes of simulation.
+    cfg.validate().context("--branching/--depth")?;
+    let sc = LoadedScenario::load(scenario)?;
+    let bar = (!quiet && std::io::stderr().is_terminal()).then(|| {
+        let pb = ProgressBar::new(1);
+        pb.set_style(
+            ProgressStyle::with_template(
+                "{prefix} [{bar:40.green/dim}] {pos}/{len} s simulated ({per_sec}, eta {eta})",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+        );
+        pb.set_prefix(sc.scenario.name.clone());
+        pb
+    });
+    let set = voc::collect_keyframes(&sc, bar.as_ref());
+    if let Some(pb) = &bar {
+        pb.finish_and_clear();
+    }
+    let set = set?;
+    let max_words = (branching as f64).powi(depth as i32);
+    if max_words > set.descriptors() as f64 {
+        eprintln!(
+            "warning: k^L = {max_words:.0} possible words for {} descriptors: most words will \
+             hold one descriptor (lower --depth or --branching, or train on a longer scenario)",
+            set.descriptors()
+        );
+    }
+    if !quiet {
+        eprintln!(
+            "training: {} keyframes, {} descriptors, k = {branching}, L = {depth}...",
+            set.images.len(),
+            set.descriptors()
+        );
+    }
+    let (vocabulary, s) = voc::train(&set, &cfg)?;
+    let bytes = voc::write_atomic(&vocabulary, out)?;
+    if !quiet {
+        println!(
+            "{}: {} words (k = {branching}, L = {depth}) from {} keyframes, {} descriptors; {} bytes ({:.2} MB)",
+            out.display(),
+            s.words,
+            s.keyframes,
+            s.descriptors,
+            bytes,
+            bytes as f64 / 1e6
+        );
+        println!(
+            "{}: {:.1} s simulated ({:.1} m driven, route {}, {} tracking loss(es)) in {:.1} s, \
+             trained in {:.1} s; {:.1} s wall",
+            sc.scenario.name,
+            s.simulated_s,
+            s.distance_m,
+            if s.route_completed {
+                "completed"
+            } else {
+                "not completed"
+            },
+            s.tracking_losses,
+            s.simulation_wall_s,
+            s.training_wall_s,
+            s.wall_s
+        );
+    }
+    Ok(EXIT_PASS)
 }
 
 fn score(a: &ScoreArgs) -> Result<u8> {

@@ -599,6 +599,15 @@ fn slam_markdown(
             opt(m, "loop_recall"),
         );
     }
+    for (source, m) in slam {
+        if let (Some(c), Some(r)) = (m.get("bow_candidates"), m.get("bow_rejected")) {
+            let _ = writeln!(
+                md,
+                "\n`{source}`: bag of words reported {c} loop candidates; the geometric check \
+                 rejected {r}."
+            );
+        }
+    }
     let rows: Vec<_> = loops
         .iter()
         .flat_map(|(s, l)| l.loops.iter().map(move |x| (s, x)))

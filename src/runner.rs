@@ -546,11 +546,39 @@ fn slam_from_scenario(
             )
             .into());
     }
+    let vocabulary = if s.slam.needs_vocabulary() {
+        let path = sc.base_dir.join(&s.slam.bow.vocabulary);
+        let read = std::fs::File::open(&path)
+            .map_err(|e| e.to_string())
+            .and_then(|f| {
+                crate::slam::bow::Vocabulary::read(std::io::BufReader::new(f))
+                    .map_err(|e| e.to_string())
+            });
+        match read {
+            Ok(v) => Some(std::sync::Arc::new(v)),
+            Err(e) => {
+                return Err(sc
+                    .field_error(
+                        "slam.bow.vocabulary",
+                        format!(
+                            "expected a bag-of-words vocabulary file (relative to the scenario \
+                             file), {}: {e}; train one with `vinebench vocabulary <scenario> \
+                             --out {}`",
+                            path.display(),
+                            path.display()
+                        ),
+                    )
+                    .into());
+            }
+        }
+    } else {
+        None
+    };
     s.slam
         .runs()
         .into_iter()
         .map(|(source, cfg)| {
-            crate::slam::VisualSlam::new(source, cfg, static_transforms.clone())
+            crate::slam::VisualSlam::new(source, cfg, static_transforms.clone(), vocabulary.clone())
                 .map_err(|e| sc.field_error("slam", e.to_string()).into())
         })
         .collect()

@@ -270,3 +270,36 @@ fn a_missing_tag_camera_is_an_error_naming_the_key() {
     .unwrap();
     assert!(vinebench::runner::setup(&sc).is_ok());
 }
+
+/// The bag-of-words baseline needs its vocabulary file: a missing one is an error naming
+/// the key, the file and how to train one; the shipped one loads.
+#[test]
+fn a_missing_vocabulary_is_an_error_naming_the_key_and_the_command() {
+    let scenario = |extra: &str| {
+        format!(
+            "[world.rows]\ncount = 3\nlength_m = 4.0\n[robot]\nmodel = \"mecanum-rover\"\n[sensors.tracking_camera]\nframe = \"front_camera_link\"\n\
+             [slam]\nenabled = true\ncameras = [\"front\"]\nbaselines = [\"bow\"]\n\
+             [slam.loop_closure]\nmethod = \"none\"\n{extra}\n\
+             [[sensors.cameras]]\nname = \"front\"\nprofile = \"zed2i\"\n\
+             frame = \"front_camera_left_optical_frame\"\n\
+             right_frame = \"front_camera_right_optical_frame\"\nwidth = 376\nheight = 240\n"
+        )
+    };
+    let text = scenario("[slam.bow]\nvocabulary = \"no/such.vbvoc\"\n");
+    let sc = vinebench::scenario::LoadedScenario::from_str(&text, "x.toml").unwrap();
+    let e = vinebench::runner::setup(&sc)
+        .err()
+        .expect("no vocabulary file")
+        .to_string();
+    assert!(
+        e.contains("slam.bow.vocabulary")
+            && e.contains("no/such.vbvoc")
+            && e.contains("vinebench vocabulary"),
+        "{e}"
+    );
+    // The default path, relative to a scenario in scenarios/, is the shipped vocabulary.
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/x.toml");
+    let mut sc = vinebench::scenario::LoadedScenario::from_str(&scenario(""), "x.toml").unwrap();
+    sc.base_dir = path.parent().unwrap().to_path_buf();
+    assert!(vinebench::runner::setup(&sc).is_ok());
+}

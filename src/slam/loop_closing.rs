@@ -31,11 +31,12 @@ use vinebench_msgs::Nanos;
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LoopConfig {
-    /// How loops are found: `tags` (the side camera's AprilTags, see `[slam.tags]`) or
-    /// `none`.
+    /// How loops are found: `tags` (the side camera's AprilTags, see `[slam.tags]`),
+    /// `bow` (bag-of-words place recognition, see `[slam.bow]`) or `none`.
     pub method: LoopMethod,
     /// Path length along the keyframes since a tag's registration (or its last loop)
-    /// before a sighting of it closes a loop, m.
+    /// before a sighting of it closes a loop, m; bag-of-words candidates must lie at least
+    /// this far back along the path.
     pub min_path_m: f64,
     /// Largest gap between the two tracked frames a sighting's stamp is interpolated
     /// between, s.
@@ -116,6 +117,9 @@ pub enum LoopMethod {
     None,
     /// AprilTags seen again by the tag camera.
     Tags,
+    /// Bag-of-words place recognition with a geometric check
+    /// ([`super::place_recognition`]).
+    Bow,
 }
 
 /// What found a loop.
@@ -277,43 +281,7 @@ impl TagLoopCloser {
         }
         .unwrap_or_else(|| info(self.cfg.tag_sigma_m, self.cfg.tag_sigma_rad));
         let matched_stamp = record.stamp;
-        let map = tracker.map_mut();
-        let before: Vec<Isometry3<f64>> = map.keyframes.iter().map(|k| k.world_from_body).collect();
-        let mut graph = PoseGraph::new(before.clone());
-        graph.fixed[0] = true;
-        let odometry = info(self.cfg.odometry_sigma_m, self.cfg.odometry_sigma_rad);
-        for i in 1..before.len() {
-            graph.add_current_edge(i - 1, i, odometry).ok()?;
-        }
-        graph.edges.push(PoseGraphEdge {
-            a: a as usize,
-            b: b as usize,
-            a_from_b,
-            information: tag_information,
-        });
-        let result = graph.optimize(&PoseGraphConfig::default()).ok()?;
-        for (kf, new) in map.keyframes.iter_mut().zip(&graph.poses) {
-            kf.world_from_body = *new;
-        }
-        for lm in map.landmarks.iter_mut().filter(|l| !l.dead) {
-            let k = lm.created_by as usize;
-            let correction = graph.poses[k] * before[k].inverse();
-            lm.position = (correction * nalgebra::Point3::from(lm.position)).coords;
-        }
-        map.keyframes[a as usize].anchored = true;
-        map.keyframes[b as usize].anchored = true;
-        let moved = graph.poses[b as usize] * before[b as usize].inverse();
-        let corrected_b = graph.poses[b as usize];
-        let correction_m =
-            (corrected_b.translation.vector - before[b as usize].translation.vector).norm();
-        let correction_deg = moved.rotation.angle().to_degrees();
-        tracker.refresh_last_pose();
-        let global_ba = if self.cfg.global_ba {
-            tracker.global_bundle_adjustment(self.cfg.global_ba_iterations)
-        } else {
-            None
-        };
-        tracker.open_loop_window(a);
+        let applied = apply_loop(tracker, &self.cfg, a, b, a_from_b, tag_information)?;
         if let Some(r) = self.tags.get_mut(&sighting.id) {
             r.path_m = path_m;
         }
@@ -324,18 +292,89 @@ impl TagLoopCloser {
             tag_id: Some(sighting.id),
             query_keyframe: b,
             matched_keyframe: a,
-            correction_m,
-            correction_deg,
-            pose_graph_cost: (result.initial_cost, result.final_cost),
-            global_ba,
+            correction_m: applied.correction_m,
+            correction_deg: applied.correction_deg,
+            pose_graph_cost: applied.pose_graph_cost,
+            global_ba: applied.global_ba,
             wall_s: started.elapsed().as_secs_f64(),
         });
         self.loops.last()
     }
 }
 
+/// What [`apply_loop`] did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AppliedLoop {
+    /// How far the loop moved keyframe `b`, m.
+    pub correction_m: f64,
+    /// How far it turned it, deg.
+    pub correction_deg: f64,
+    /// Pose-graph cost before and after.
+    pub pose_graph_cost: (f64, f64),
+    /// The global BA that followed, if any ran.
+    pub global_ba: Option<BundleOutcome>,
+}
+
+/// Closes a loop whatever found it: the measured `a_from_b` between keyframes `a` and
+/// `b` (with its `information`, translation then rotation) joins a pose graph over all
+/// keyframes (the first fixed, consecutive ones joined by their current relative poses
+/// with the `odometry_sigma_*` of `cfg`); its solution moves every keyframe, each
+/// landmark moves with the keyframe that created it, both keyframes are anchored, global
+/// BA runs (if configured) and tracking searches the landmarks around `a` for a while.
+/// `None` (and nothing changed) when the pose graph cannot be solved.
+pub fn apply_loop(
+    tracker: &mut Tracker,
+    cfg: &LoopConfig,
+    a: u32,
+    b: u32,
+    a_from_b: Isometry3<f64>,
+    information: Matrix6<f64>,
+) -> Option<AppliedLoop> {
+    let map = tracker.map_mut();
+    let before: Vec<Isometry3<f64>> = map.keyframes.iter().map(|k| k.world_from_body).collect();
+    let mut graph = PoseGraph::new(before.clone());
+    graph.fixed[0] = true;
+    let odometry = info(cfg.odometry_sigma_m, cfg.odometry_sigma_rad);
+    for i in 1..before.len() {
+        graph.add_current_edge(i - 1, i, odometry).ok()?;
+    }
+    graph.edges.push(PoseGraphEdge {
+        a: a as usize,
+        b: b as usize,
+        a_from_b,
+        information,
+    });
+    let result = graph.optimize(&PoseGraphConfig::default()).ok()?;
+    for (kf, new) in map.keyframes.iter_mut().zip(&graph.poses) {
+        kf.world_from_body = *new;
+    }
+    for lm in map.landmarks.iter_mut().filter(|l| !l.dead) {
+        let k = lm.created_by as usize;
+        let correction = graph.poses[k] * before[k].inverse();
+        lm.position = (correction * nalgebra::Point3::from(lm.position)).coords;
+    }
+    map.keyframes[a as usize].anchored = true;
+    map.keyframes[b as usize].anchored = true;
+    let (old_b, new_b) = (before[b as usize], graph.poses[b as usize]);
+    let correction_m = (new_b.translation.vector - old_b.translation.vector).norm();
+    let correction_deg = (new_b * old_b.inverse()).rotation.angle().to_degrees();
+    tracker.refresh_last_pose();
+    let global_ba = if cfg.global_ba {
+        tracker.global_bundle_adjustment(cfg.global_ba_iterations)
+    } else {
+        None
+    };
+    tracker.open_loop_window(a);
+    Some(AppliedLoop {
+        correction_m,
+        correction_deg,
+        pose_graph_cost: (result.initial_cost, result.final_cost),
+        global_ba,
+    })
+}
+
 /// A diagonal information matrix (translation, then rotation) from standard deviations.
-fn info(sigma_m: f64, sigma_rad: f64) -> Matrix6<f64> {
+pub fn info(sigma_m: f64, sigma_rad: f64) -> Matrix6<f64> {
     let t = 1.0 / (sigma_m * sigma_m);
     let r = 1.0 / (sigma_rad * sigma_rad);
     Matrix6::from_diagonal(&Vector6::new(t, t, t, r, r, r))
@@ -386,7 +425,7 @@ fn edge_information(
 }
 
 /// Path length along the keyframe positions from the first keyframe to `k`, m.
-fn path_length_to(tracker: &Tracker, k: u32) -> f64 {
+pub fn path_length_to(tracker: &Tracker, k: u32) -> f64 {
     tracker.map().keyframes[..=k as usize]
         .windows(2)
         .map(|w| {

@@ -49,6 +49,7 @@ pub mod loop_closing;
 pub mod map;
 pub mod motion_ba;
 pub mod orb;
+pub mod place_recognition;
 pub mod pose_graph;
 pub mod ssc;
 pub mod stereo;

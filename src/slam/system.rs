@@ -12,10 +12,12 @@
 //! ([`super::tracking`]). Messages are processed in the order given, so a run and its
 //! replay produce the same trajectory.
 
+use super::bow::Vocabulary;
 use super::frontend::{FrontEndConfig, StereoFrame, StereoFrontEnd};
 use super::image::{GrayImage, ImageError};
 use super::loop_closing::{LoopClosure, LoopConfig, LoopMethod, LoopStats, TagLoopCloser};
 use super::motion_ba::RigCamera;
+use super::place_recognition::{BowConfig, BowLoopCloser, BowStats};
 use super::tags::{TagCamera, TagConfig, TagDetector, TagSighting, tag_pose_information};
 use super::tracking::{
     CameraInput, FrameResult, Tracker, TrackerCamera, TrackerStats, TrackingConfig, TrackingLoss,
@@ -24,6 +26,7 @@ use super::{ConfigError, check};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
+use std::sync::Arc;
 use vinebench_msgs::{
     CameraInfoMsg, ImageMsg, Message, Nanos, PoseSample, StaticTransforms, Trajectory,
 };
@@ -47,6 +50,8 @@ pub struct SlamConfig {
     pub tags: TagConfig,
     /// Loop closure.
     pub loop_closure: LoopConfig,
+    /// Bag-of-words loop detection (`loop_closure.method = "bow"`).
+    pub bow: BowConfig,
     /// Baselines run on the same messages, each an estimate source of its own.
     pub baselines: Vec<SlamBaseline>,
 }
@@ -60,6 +65,9 @@ pub enum SlamBaseline {
     SingleCamera,
     /// Every camera, no loop closure (source `slam_no_loops`): the ATE without loops.
     NoLoops,
+    /// Every camera, loops found by bag of words instead of tags (source `slam_bow`):
+    /// ORB-SLAM's place recognition.
+    Bow,
 }
 
 impl SlamBaseline {
@@ -68,6 +76,7 @@ impl SlamBaseline {
         match self {
             SlamBaseline::SingleCamera => "slam_single_camera",
             SlamBaseline::NoLoops => "slam_no_loops",
+            SlamBaseline::Bow => "slam_bow",
         }
     }
 
@@ -87,6 +96,13 @@ impl SlamBaseline {
                 ..no_loops
             },
             SlamBaseline::NoLoops => no_loops,
+            SlamBaseline::Bow => SlamConfig {
+                loop_closure: LoopConfig {
+                    method: LoopMethod::Bow,
+                    ..cfg.loop_closure.clone()
+                },
+                ..no_loops
+            },
         }
     }
 }
@@ -104,6 +120,7 @@ impl Default for SlamConfig {
             tracking: TrackingConfig::default(),
             tags: TagConfig::default(),
             loop_closure: LoopConfig::default(),
+            bow: BowConfig::default(),
             baselines: Vec::new(),
         }
     }
@@ -135,12 +152,20 @@ impl SlamConfig {
         self.features.validate()?;
         self.tracking.validate()?;
         self.tags.validate()?;
-        self.loop_closure.validate()
+        self.loop_closure.validate()?;
+        self.bow.validate()
     }
 
     /// Whether this SLAM reads the tag camera.
     pub fn uses_tags(&self) -> bool {
         self.loop_closure.method == LoopMethod::Tags
+    }
+
+    /// Whether this SLAM, or one of its baselines, needs the bag-of-words vocabulary.
+    pub fn needs_vocabulary(&self) -> bool {
+        self.runs()
+            .iter()
+            .any(|(_, c)| c.loop_closure.method == LoopMethod::Bow)
     }
 
     /// Every SLAM a scenario runs: the SLAM itself, then each baseline, with the source
@@ -232,6 +257,11 @@ pub struct SlamOutput {
     pub tag_images: usize,
     /// Tag detections accepted.
     pub tag_detections: usize,
+    /// Bag-of-words loop-closer counters (with `loop_closure.method = "bow"`).
+    pub bow_stats: Option<BowStats>,
+    /// Every keyframe's descriptors, all cameras together (the training images of a
+    /// bag-of-words vocabulary, `vinebench vocabulary`).
+    pub keyframe_descriptors: Vec<Vec<super::Descriptor>>,
     /// Wall-clock seconds spent in the SLAM (feature extraction, tracking, local BA); for
     /// `timing.json`, never for results.
     pub wall_s: f64,
@@ -248,6 +278,7 @@ pub struct VisualSlam {
     frames: Vec<FrameResult>,
     busy_s: f64,
     tags: Option<TagSlot>,
+    bow: Option<BowLoopCloser>,
 }
 
 /// The tag camera's input and the loop closer.
@@ -267,13 +298,33 @@ struct TagSlot {
 
 impl VisualSlam {
     /// A SLAM over the cameras of `cfg`, with the robot's `/tf_static`, producing the
-    /// estimate source `source`.
+    /// estimate source `source`. `vocabulary` is needed (only) with
+    /// `loop_closure.method = "bow"`.
     pub fn new(
         source: &'static str,
         cfg: SlamConfig,
         static_transforms: StaticTransforms,
+        vocabulary: Option<Arc<Vocabulary>>,
     ) -> Result<Self, SlamError> {
         cfg.validate()?;
+        let bow = if cfg.loop_closure.method == LoopMethod::Bow {
+            let Some(vocabulary) = vocabulary else {
+                return Err(ConfigError(
+                    "slam.loop_closure.method = \"bow\" needs a vocabulary (slam.bow.vocabulary)"
+                        .to_string(),
+                )
+                .into());
+            };
+            Some(BowLoopCloser::new(
+                cfg.bow.clone(),
+                cfg.loop_closure.clone(),
+                cfg.features.stereo.max_depth_baselines,
+                cfg.features.orb.scale_factor,
+                vocabulary,
+            )?)
+        } else {
+            None
+        };
         let mut slots = Vec::with_capacity(cfg.cameras.len());
         for name in &cfg.cameras {
             slots.push(CameraSlot {
@@ -317,6 +368,7 @@ impl VisualSlam {
             frames: Vec::new(),
             busy_s: 0.0,
             tags,
+            bow,
         })
     }
 
@@ -511,6 +563,9 @@ impl VisualSlam {
         let result = tracker.track(stamp, &inputs);
         self.frames.push(result);
         self.close_loops(stamp);
+        if let (Some(bow), Some(tracker)) = (self.bow.as_mut(), self.tracker.as_mut()) {
+            bow.on_keyframes(tracker);
+        }
     }
 
     /// Detects tags in a tag-camera image; the sightings wait for the tracker to pass
@@ -585,6 +640,8 @@ impl VisualSlam {
                 loop_stats: LoopStats::default(),
                 tag_images: self.tags.as_ref().map_or(0, |t| t.images),
                 tag_detections: self.tags.as_ref().map_or(0, |t| t.detections),
+                bow_stats: self.bow.as_ref().map(|b| b.stats().clone()),
+                keyframe_descriptors: Vec::new(),
                 wall_s: self.busy_s,
             };
         };
@@ -604,11 +661,11 @@ impl VisualSlam {
             stats: tracker.stats().clone(),
             pairs,
             landmarks: tracker.map().n_live_landmarks(),
-            loops: self
-                .tags
-                .as_ref()
-                .map(|t| t.closer.loops().to_vec())
-                .unwrap_or_default(),
+            loops: match (&self.tags, &self.bow) {
+                (Some(t), _) => t.closer.loops().to_vec(),
+                (None, Some(b)) => b.loops().to_vec(),
+                (None, None) => Vec::new(),
+            },
             loop_stats: self
                 .tags
                 .as_ref()
@@ -616,6 +673,18 @@ impl VisualSlam {
                 .unwrap_or_default(),
             tag_images: self.tags.as_ref().map_or(0, |t| t.images),
             tag_detections: self.tags.as_ref().map_or(0, |t| t.detections),
+            bow_stats: self.bow.as_ref().map(|b| b.stats().clone()),
+            keyframe_descriptors: tracker
+                .map()
+                .keyframes
+                .iter()
+                .map(|k| {
+                    k.cameras
+                        .iter()
+                        .flat_map(|c| c.descriptors.iter().copied())
+                        .collect()
+                })
+                .collect(),
             wall_s: self.busy_s,
         }
     }
@@ -661,6 +730,11 @@ impl SlamOutput {
             }
             "keyframes" => self.stats.keyframes as f64,
             "maps_started" => self.stats.initializations as f64,
+            "bow_candidates" => self.bow_stats.as_ref()?.candidates as f64,
+            "bow_rejected" => {
+                let b = self.bow_stats.as_ref()?;
+                (b.rejected_ransac + b.rejected_ba) as f64
+            }
             _ => return None,
         })
     }
@@ -710,7 +784,7 @@ mod tests {
             cameras: vec!["front".to_string()],
             ..SlamConfig::default()
         };
-        VisualSlam::new(SLAM_SOURCE, cfg, tf).unwrap()
+        VisualSlam::new(SLAM_SOURCE, cfg, tf, None).unwrap()
     }
 
     #[test]
