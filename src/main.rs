@@ -2,8 +2,6 @@
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
-use indicatif::{ProgressBar, ProgressStyle};
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -553,18 +551,7 @@ fn vocabulary(
     // Bad settings fail before minutes of simulation.
     cfg.validate().context("--branching/--depth")?;
     let sc = LoadedScenario::load(scenario)?;
-    let bar = (!quiet && std::io::stderr().is_terminal()).then(|| {
-        let pb = ProgressBar::new(1);
-        pb.set_style(
-            ProgressStyle::with_template(
-                "{prefix} [{bar:40.green/dim}] {pos}/{len} s simulated ({per_sec}, eta {eta})",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-        );
-        pb.set_prefix(sc.scenario.name.clone());
-        pb
-    });
+    let bar = runner::progress_bar(&sc, !quiet);
     let set = voc::collect_keyframes(&sc, bar.as_ref());
     if let Some(pb) = &bar {
         pb.finish_and_clear();

@@ -649,6 +649,23 @@ fn motion_model(
     })
 }
 
+/// The progress bar of a scenario's simulation (seconds simulated), on a terminal and when
+/// `enabled`.
+pub fn progress_bar(sc: &LoadedScenario, enabled: bool) -> Option<ProgressBar> {
+    (enabled && std::io::stderr().is_terminal()).then(|| {
+        let pb = ProgressBar::new(1);
+        pb.set_style(
+            ProgressStyle::with_template(
+                "{prefix} [{bar:40.green/dim}] {pos}/{len} s simulated ({per_sec}, eta {eta})",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+        );
+        pb.set_prefix(sc.scenario.name.clone());
+        pb
+    })
+}
+
 /// Checks that a scenario can be set up (world, robot, route, sensors, estimators)
 /// without running it.
 pub fn validate(sc: &LoadedScenario) -> Result<(), RunError> {
@@ -1005,18 +1022,7 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
     )?);
     built.stop = opts.stop.clone();
 
-    let bar = (opts.progress && std::io::stderr().is_terminal()).then(|| {
-        let pb = ProgressBar::new(1);
-        pb.set_style(
-            ProgressStyle::with_template(
-                "{prefix} [{bar:40.green/dim}] {pos}/{len} s simulated ({per_sec}, eta {eta})",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-        );
-        pb.set_prefix(sc.scenario.name.clone());
-        pb
-    });
+    let bar = progress_bar(sc, opts.progress);
     let t0 = Instant::now();
     let sim = simulate_setup(sc, built, bar.as_ref());
     let wall_s = t0.elapsed().as_secs_f64();

@@ -115,6 +115,13 @@ pub struct KeyFrame {
 }
 
 impl KeyFrame {
+    /// Every camera's descriptors, camera by camera (its bag-of-words image).
+    pub fn descriptors(&self) -> impl Iterator<Item = Descriptor> + '_ {
+        self.cameras
+            .iter()
+            .flat_map(|c| c.descriptors.iter().copied())
+    }
+
     /// Landmarks it observes (with repeats when two cameras see the same one).
     pub fn landmarks(&self) -> impl Iterator<Item = u32> + '_ {
         self.cameras

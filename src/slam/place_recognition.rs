@@ -218,11 +218,7 @@ impl BowLoopCloser {
     fn query(&mut self, tracker: &mut Tracker, k: u32) {
         let map = tracker.map();
         let kf = &map.keyframes[k as usize];
-        let descriptors: Vec<_> = kf
-            .cameras
-            .iter()
-            .flat_map(|c| c.descriptors.iter().copied())
-            .collect();
+        let descriptors: Vec<_> = kf.descriptors().collect();
         let bow = self.vocabulary.transform(&descriptors);
         let normalizer = match k.checked_sub(1) {
             Some(prev) => super::bow::score(&bow, &self.bows[prev as usize]),
@@ -589,12 +585,7 @@ mod tests {
             .map()
             .keyframes
             .iter()
-            .map(|k| {
-                k.cameras
-                    .iter()
-                    .flat_map(|c| c.descriptors.clone())
-                    .collect()
-            })
+            .map(|k| k.descriptors().collect())
             .collect();
         let cfg = VocabularyConfig {
             branching: 10,

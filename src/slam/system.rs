@@ -678,12 +678,7 @@ impl VisualSlam {
                 .map()
                 .keyframes
                 .iter()
-                .map(|k| {
-                    k.cameras
-                        .iter()
-                        .flat_map(|c| c.descriptors.iter().copied())
-                        .collect()
-                })
+                .map(|k| k.descriptors().collect())
                 .collect(),
             wall_s: self.busy_s,
         }
