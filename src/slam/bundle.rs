@@ -33,12 +33,19 @@
 //!
 //! The solver is Levenberg-Marquardt on the normal equations with the Schur complement on
 //! the landmarks: every free landmark's damped 3×3 block is inverted, the reduced camera
-//! system over the free keyframes (6 per keyframe, assembled in 6×6 blocks, solved dense
-//! with nalgebra's Cholesky: fine up to a few hundred keyframes) is solved, and the
-//! landmark steps follow by back-substitution. The blocks are built from a compact form of
-//! each observation (`B = Aᵀ w A`, `e = Aᵀ w r` and `p_b`, with `A = ∂π/∂p_c · R_cb`), never
-//! from the full Jacobians. A step is kept only if it lowers the (robust) cost, with `λ`
-//! divided by 10 after a kept step and multiplied by 10 after a rejected one; damping is
+//! system over the free keyframes (6 per keyframe, in 6×6 blocks) is solved, and the
+//! landmark steps follow by back-substitution. The reduced system is sparse (two keyframes
+//! are coupled only when they see a landmark in common: the covisibility graph, banded
+//! along the path plus the loop closures), so it is assembled in the blocks of a
+//! [`BlockStructure`] and factored by the sparse block Cholesky of
+//! [`block_cholesky`](super::block_cholesky), its minimum-degree order computed once per
+//! call; each landmark's observations are sorted by that order, so the Schur complement
+//! walks the structure's columns instead of searching them. The blocks are built from a
+//! compact form of each observation (`B = Aᵀ w A`, `e = Aᵀ w r` and `p_b`, with
+//! `A = ∂π/∂p_c · R_cb`), never from the full Jacobians. A step is kept only if it lowers
+//! the (robust) cost; `λ` follows Nielsen's rule (after a kept step it is multiplied by
+//! `max(1/3, 1 - (2ρ - 1)³)`, `ρ` the ratio of the actual to the predicted decrease;
+//! after a rejected one by `ν`, which doubles each time); damping is
 //! Marquardt's (`λ` times the block's diagonal, plus a floor), so a landmark seen once,
 //! whose depth the data leave free, stays well-defined, and a landmark whose block still
 //! cannot be inverted is held for that step. An observation whose landmark a step carries
@@ -58,10 +65,11 @@
 //! Gauss-Newton step (the drift of a 100-keyframe row then takes some 30 iterations to
 //! come out), it first runs plain least-squares iterations
 //! ([`BundleConfig::plain_iterations`], which close the loop in a handful), then one
-//! robust round that deals with the wrong matches. 0.2°/m of heading drift over a 20 m or
-//! a 50 m row (4° and 10° at the end) comes out in under 10 iterations; 0.1°/m over 100 m
-//! (10°, 9 m) only partly (2 cm RMS left after 38 iterations): such drift wants a
-//! pose-graph correction first, as ORB-SLAM's essential graph.
+//! robust round that deals with the wrong matches. 0.2°/m of heading drift over a 20 m
+//! row (4° at the end) comes out in under 10 iterations
+//! (`global_ba_with_the_loop_ends_fixed_corrects_drift`); metres of drift (0.1°/m over
+//! 200 m, [`time_global_ba`](super::bench::time_global_ba)) only partly: such drift wants a
+//! pose-graph correction first, as ORB-SLAM's essential graph, which the loop closer runs.
 //!
 //! **Gauge.** The problem is invariant to a rigid motion of the whole map (and, with
 //! monocular observations only, to its scale): the caller fixes at least one keyframe
@@ -76,12 +84,13 @@
 use std::ops::AddAssign;
 
 use nalgebra::{
-    DMatrix, DVector, Isometry3, Matrix3, Matrix3x6, Matrix6, Matrix6x3, Point3, UnitQuaternion,
-    Vector2, Vector3, Vector6,
+    Isometry3, Matrix3, Matrix3x6, Matrix6, Matrix6x3, Point3, UnitQuaternion, Vector2, Vector3,
+    Vector6,
 };
 
 use rayon::prelude::*;
 
+use super::block_cholesky::{BlockCholesky, BlockStructure};
 use super::motion_ba::{CHI2_2DOF_95, RigCamera, retract};
 use super::{ConfigError, check};
 
@@ -529,7 +538,8 @@ struct LandmarkBlock {
     g: Vector3<f64>,
     /// Observations used.
     n_used: usize,
-    /// The lowest and highest free keyframe coupled (`lo > hi`: none).
+    /// The lowest and highest position ([`Problem::structure`]) of a free keyframe coupled
+    /// (`lo > hi`: none).
     span: (usize, usize),
 }
 
@@ -611,10 +621,14 @@ struct Problem<'a> {
     free_landmark: Vec<Option<usize>>,
     n_free_keyframes: usize,
     n_free_landmarks: usize,
-    /// The observations of each free landmark, by keyframe (then input order).
+    /// The observations of each free landmark, by the elimination position of their free
+    /// keyframe (fixed keyframes last), then keyframe, then input order.
     by_landmark: Groups,
     /// The observations of each free keyframe, in input order.
     by_keyframe: Groups,
+    /// The reduced camera system's block structure over the free keyframes (coupled when
+    /// they see a free landmark in common) and its elimination order.
+    structure: BlockStructure,
 }
 
 impl<'a> Problem<'a> {
@@ -651,11 +665,40 @@ impl<'a> Problem<'a> {
             |i| Some(observations[i].keyframe),
             keyframes.len(),
         );
-        let by_landmark = Groups::new(
+        let mut by_landmark = Groups::new(
             all_by_keyframe.index.iter().copied(),
             |i| free_landmark[observations[i].landmark],
             n_free_landmarks,
         );
+        // Free keyframes coupled through a free landmark: every pair of its observers.
+        let mut pairs = Vec::new();
+        let mut observers = Vec::new();
+        for j in 0..n_free_landmarks {
+            observers.clear();
+            for &i in &by_landmark.index[by_landmark.range(j)] {
+                if let Some(k) = free_keyframe[observations[i].keyframe] {
+                    if observers.last() != Some(&k) {
+                        observers.push(k);
+                    }
+                }
+            }
+            for (b, &kb) in observers.iter().enumerate() {
+                pairs.extend(observers[..b].iter().map(|&ka| (ka, kb)));
+            }
+        }
+        pairs.sort_unstable();
+        pairs.dedup();
+        let structure = BlockStructure::new(n_free_keyframes, pairs);
+        // Each landmark's observations by the elimination position of their keyframe
+        // (fixed keyframes last; stable), so that the Schur complement walks the columns
+        // of the structure in order.
+        let key = |i: &usize| {
+            free_keyframe[observations[*i].keyframe].map_or(usize::MAX, |k| structure.position(k))
+        };
+        for j in 0..n_free_landmarks {
+            let range = by_landmark.range(j);
+            by_landmark.index[range].sort_by_key(key);
+        }
         Problem {
             cameras,
             camera_from_body: cameras
@@ -683,6 +726,7 @@ impl<'a> Problem<'a> {
             n_free_landmarks,
             by_landmark,
             by_keyframe,
+            structure,
         }
     }
 
@@ -832,7 +876,8 @@ impl<'a> Problem<'a> {
                             keyframe: k,
                             w: p_transpose_times(&c.p_b, &b_r),
                         };
-                        block.span = (block.span.0.min(k), block.span.1.max(k));
+                        let p = self.structure.position(k);
+                        block.span = (block.span.0.min(p), block.span.1.max(p));
                     }
                 }
                 block
@@ -877,7 +922,6 @@ impl<'a> Problem<'a> {
     /// The damped step; `None` when the reduced camera system is not positive definite.
     fn solve(&self, n: &Normal, lambda: f64) -> Option<Step> {
         let (nk, nl) = (self.n_free_keyframes, self.n_free_landmarks);
-        let dim = 6 * nk;
         // Damped landmark blocks, inverted (a landmark that cannot be is held for this
         // step: its observations then constrain the keyframes as if it were fixed).
         let v_inv: Vec<Option<Matrix3<f64>>> = n
@@ -896,64 +940,52 @@ impl<'a> Problem<'a> {
                     .filter(|m| m.iter().all(|x| x.is_finite()))
             })
             .collect();
-        // The reduced camera system S = U - Σ W V⁻¹ Wᵀ, lower triangle of blocks, each
-        // task owning the columns of a few keyframes: every entry is summed in the same
-        // order (landmark, then observation) whichever task computes it, so the split
-        // (here by the number of threads) does not change a bit.
-        // The blocks are stored column after column (column k_b: rows k_b..n), each
-        // contiguous.
-        let mut column_start = Vec::with_capacity(nk + 1);
-        column_start.push(0);
-        for k in 0..nk {
-            column_start.push(column_start[k] + nk - k);
-        }
-        let mut blocks = vec![Matrix6::<f64>::zeros(); column_start[nk]];
+        // The reduced camera system S = U - Σ W V⁻¹ Wᵀ in the blocks of the sparse
+        // structure (by elimination position), each task owning the diagonal blocks and
+        // the columns of a run of positions: every entry is summed in the same order
+        // (landmark, then observation) whichever task computes it, so the split (here by
+        // the number of threads) does not change a bit.
+        let s = &self.structure;
+        let mut diag = vec![Matrix6::<f64>::zeros(); nk];
+        let mut off = vec![Matrix6::<f64>::zeros(); s.n_blocks()];
         let per_task = nk.div_ceil(2 * rayon::current_num_threads()).max(1);
         let mut tasks = Vec::new();
-        let mut rest: &mut [Matrix6<f64>] = &mut blocks;
-        for k0 in (0..nk).step_by(per_task) {
-            let k1 = (k0 + per_task).min(nk);
-            let (head, tail) = rest.split_at_mut(column_start[k1] - column_start[k0]);
-            tasks.push((k0..k1, head));
-            rest = tail;
+        let (mut diag_rest, mut off_rest): (&mut [Matrix6<f64>], &mut [Matrix6<f64>]) =
+            (&mut diag, &mut off);
+        for p0 in (0..nk).step_by(per_task) {
+            let p1 = (p0 + per_task).min(nk);
+            let slots = s.column(p0).start..s.column(p1 - 1).end;
+            let (d, d_tail) = diag_rest.split_at_mut(p1 - p0);
+            let (o, o_tail) = off_rest.split_at_mut(slots.len());
+            tasks.push((p0..p1, slots.start, d, o));
+            diag_rest = d_tail;
+            off_rest = o_tail;
         }
-        tasks.into_par_iter().for_each(|(keys, columns)| {
-            self.assemble_columns(n, &v_inv, lambda, &column_start, keys, columns);
-        });
-        let mut s = DMatrix::<f64>::zeros(dim, dim);
-        for kb in 0..nk {
-            for ka in kb..nk {
-                s.fixed_view_mut::<6, 6>(6 * ka, 6 * kb)
-                    .copy_from(&blocks[column_start[kb] + ka - kb]);
-            }
-        }
-        s.fill_upper_triangle_with_lower_triangle();
-        let mut b = DVector::<f64>::zeros(dim);
-        for k in 0..nk {
-            b.fixed_rows_mut::<6>(6 * k).copy_from(&n.g_pose[k]);
-        }
-        // b -= Σ W V⁻¹ g_x.
+        tasks
+            .into_par_iter()
+            .for_each(|(positions, slot0, diag, off)| {
+                self.assemble_columns(n, &v_inv, lambda, positions, slot0, diag, off);
+            });
+        // b = g - Σ W V⁻¹ g_x, by position.
+        let mut b: Vec<Vector6<f64>> = (0..nk).map(|p| n.g_pose[s.variable_at(p)]).collect();
         for (j, inv) in v_inv.iter().enumerate() {
             let Some(inv) = inv else { continue };
             let t = inv * n.landmarks[j].g;
             for c in self.coupling(n, j) {
                 if c.keyframe < nk {
-                    let mut bk = b.fixed_rows_mut::<6>(6 * c.keyframe);
-                    bk -= c.w * t;
+                    b[s.position(c.keyframe)] -= c.w * t;
                 }
             }
         }
-        let x = if nk == 0 {
-            DVector::zeros(0)
-        } else {
-            s.cholesky()?.solve(&b)
-        };
-        if !x.iter().all(|v| v.is_finite()) {
+        let mut cholesky = BlockCholesky::new(s);
+        if !cholesky.factor(s, &diag, &off) {
             return None;
         }
-        let pose: Vec<Vector6<f64>> = (0..nk)
-            .map(|k| x.fixed_rows::<6>(6 * k).into_owned())
-            .collect();
+        cholesky.solve(s, &mut b);
+        if !b.iter().all(|v| v.iter().all(|x| x.is_finite())) {
+            return None;
+        }
+        let pose: Vec<Vector6<f64>> = (0..nk).map(|k| b[s.position(k)]).collect();
         let point: Vec<Vector3<f64>> = (0..nl)
             .into_par_iter()
             .map(|j| match v_inv[j] {
@@ -972,49 +1004,60 @@ impl<'a> Problem<'a> {
         Some(Step { pose, point })
     }
 
-    /// The columns of the keyframes `keys` of the damped reduced camera system (lower
-    /// triangle of blocks): `damped U - Σ W V⁻¹ Wᵀ`, summed landmark after landmark.
+    /// The blocks of the positions `positions` of the damped reduced camera system:
+    /// `diag` their diagonal blocks, `off` their columns' off-diagonal blocks (the slots
+    /// from `slot0` on), `damped U - Σ W V⁻¹ Wᵀ` summed landmark after landmark.
+    #[allow(clippy::too_many_arguments)]
     #[inline(never)]
     fn assemble_columns(
         &self,
         n: &Normal,
         v_inv: &[Option<Matrix3<f64>>],
         lambda: f64,
-        column_start: &[usize],
-        keys: std::ops::Range<usize>,
-        columns: &mut [Matrix6<f64>],
+        positions: std::ops::Range<usize>,
+        slot0: usize,
+        diag: &mut [Matrix6<f64>],
+        off: &mut [Matrix6<f64>],
     ) {
+        let s = &self.structure;
         let nk = self.n_free_keyframes;
-        let (k0, k1) = (keys.start, keys.end);
-        let base = column_start[k0];
-        for k in k0..k1 {
-            let mut u = n.u[k];
+        let (p0, p1) = (positions.start, positions.end);
+        for (p, block) in positions.zip(diag.iter_mut()) {
+            let mut u = n.u[s.variable_at(p)];
             for d in 0..6 {
                 u[(d, d)] = damp(u[(d, d)], lambda);
             }
-            columns[column_start[k] - base] = u;
+            *block = u;
         }
         for (j, inv) in v_inv.iter().enumerate() {
             let Some(inv) = inv else { continue };
             let (lo, hi) = n.landmarks[j].span;
-            if lo > hi || hi < k0 || lo >= k1 {
+            if lo > hi || hi < p0 || lo >= p1 {
                 continue;
             }
-            // Every ordered pair (a, b) with k_a ≥ k_b, k_b in this task's columns, adds
-            // W_a V⁻¹ W_bᵀ = W_a Y_bᵀ to block (k_a, k_b) (unused slots, usize::MAX,
-            // are skipped).
+            // Every ordered pair (a, b) with p_a ≥ p_b, p_b in this task's positions,
+            // adds W_a V⁻¹ W_bᵀ = W_a Y_bᵀ to block (p_a, p_b) (unused slots,
+            // usize::MAX, are skipped). The couplings come by increasing position, as the
+            // rows of a column: one walk finds every block of column p_b.
             let coupling = self.coupling(n, j);
-            for cb in coupling {
-                if !(k0..k1).contains(&cb.keyframe) {
+            for cb in coupling.iter().filter(|c| c.keyframe < nk) {
+                let pb = s.position(cb.keyframe);
+                if !(p0..p1).contains(&pb) {
                     continue;
                 }
                 let yb = cb.w * inv;
-                let column = column_start[cb.keyframe] - base;
-                for ca in coupling {
-                    if ca.keyframe >= cb.keyframe && ca.keyframe < nk {
-                        if let Some(block) = columns.get_mut(column + ca.keyframe - cb.keyframe) {
-                            sub_product(block, &ca.w, &yb);
+                let column = s.column(pb);
+                let rows = s.column_rows(pb);
+                let mut cursor = 0;
+                for ca in coupling.iter().filter(|c| c.keyframe < nk) {
+                    let pa = s.position(ca.keyframe);
+                    if pa == pb {
+                        sub_product(&mut diag[pb - p0], &ca.w, &yb);
+                    } else if pa > pb {
+                        while rows[cursor] < pa {
+                            cursor += 1;
                         }
+                        sub_product(&mut off[column.start + cursor - slot0], &ca.w, &yb);
                     }
                 }
             }
@@ -1023,8 +1066,8 @@ impl<'a> Problem<'a> {
 
     /// Up to `max_iterations` Levenberg-Marquardt iterations over the `active`
     /// observations, robust or plain, from `est`; returns the iterations run. A step is
-    /// kept only if it lowers the cost; `λ` is divided by 10 after a kept step and
-    /// multiplied by 10 after a rejected one. Stops when no step in [`LAMBDA_TRIES`]
+    /// kept only if it lowers the cost; `λ` follows Nielsen's rule (see the module docs).
+    /// Stops when no step in [`LAMBDA_TRIES`]
     /// lowers the cost or a kept one lowers it by less than
     /// [`BundleConfig::min_relative_decrease`] (plain: at least
     /// [`PLAIN_MIN_RELATIVE_DECREASE`]).
@@ -1037,6 +1080,7 @@ impl<'a> Problem<'a> {
         cfg: &BundleConfig,
     ) -> usize {
         let mut lambda = cfg.initial_lambda;
+        let mut nu = 2.0;
         let mut spare = Vec::new();
         // The plain pass only brings the map near: the robust round refines it.
         let min_relative_decrease = if robust {
@@ -1061,12 +1105,20 @@ impl<'a> Problem<'a> {
                     let candidate = self.apply(est, &step);
                     let c = self.cost(&candidate, &used, robust, &chi2);
                     if c.is_finite() && c < current {
+                        // Nielsen's update from the gain ratio ρ (actual over predicted
+                        // decrease): a step the model predicted well lets λ fall (at
+                        // most 3×), a poor one raises it.
+                        let predicted = self.predicted_decrease(&normal, &step, lambda);
+                        let rho = (current - c) / predicted.max(f64::MIN_POSITIVE);
+                        let factor = (1.0 - (2.0 * rho.min(1.0) - 1.0).powi(3)).max(1.0 / 3.0);
+                        lambda = (lambda * factor).max(1e-12);
+                        nu = 2.0;
                         kept = Some((candidate, c));
-                        lambda = (lambda / 10.0).max(1e-12);
                         break;
                     }
                 }
-                lambda *= 10.0;
+                lambda *= nu;
+                nu *= 2.0;
             }
             spare = normal.coupling;
             let Some((candidate, c)) = kept else {
@@ -1078,6 +1130,23 @@ impl<'a> Problem<'a> {
             }
         }
         max_iterations
+    }
+
+    /// The decrease of the (weighted) cost the linear model predicts for `step`, the
+    /// solution of `(H + λD) δ = g`: `2δᵀg - δᵀHδ = δᵀg + λ δᵀDδ`.
+    fn predicted_decrease(&self, n: &Normal, step: &Step, lambda: f64) -> f64 {
+        let mut total = 0.0;
+        for ((d, u), g) in step.pose.iter().zip(&n.u).zip(&n.g_pose) {
+            for i in 0..6 {
+                total += d[i] * (g[i] + lambda * (u[(i, i)].max(0.0) + DAMPING_FLOOR) * d[i]);
+            }
+        }
+        for (d, l) in step.point.iter().zip(&n.landmarks) {
+            for i in 0..3 {
+                total += d[i] * (l.g[i] + lambda * (l.v[(i, i)].max(0.0) + DAMPING_FLOOR) * d[i]);
+            }
+        }
+        total
     }
 
     /// `est` moved by `step`.
@@ -1258,7 +1327,7 @@ pub fn bundle_adjust(
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
-    use nalgebra::Translation3;
+    use nalgebra::{DMatrix, Translation3};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};

@@ -3,10 +3,15 @@
 //!
 //! The first usable sighting of a tag **registers** it: its pose is stored relative to the
 //! keyframe of that moment (`keyframe_from_tag`), so it moves with every later correction
-//! of that keyframe. A sighting after the robot has travelled at least `min_path_m` (along
-//! the keyframes) since the registration, or since the last loop at that tag, is a
-//! **loop**: the registered tag and the current view of it say where the current keyframe
-//! is, relative to the registration keyframe. That relative pose is a loop edge of a
+//! of that keyframe, and so is every further sighting of that first visit (until the robot
+//! has gone `min_path_m` on). A sighting after the robot has travelled at least
+//! `min_path_m` (along the keyframes) since the registration, or since the last loop at
+//! that tag, is a **loop** when the body pose it gives is within
+//! `max_tag_loop_distance_m` of the body at a registering sighting: the nearest one and
+//! the current view of the tag say where the current keyframe is, relative to that
+//! sighting's keyframe (a tag seen again from across the headland is a valid constraint
+//! too, but between poses whose views hardly overlap, and not the revisit a loop stands
+//! for; such a sighting waits for a nearer one). That relative pose is a loop edge of a
 //! pose graph over all keyframes (consecutive keyframes joined by their current relative
 //! poses), whose solution moves every keyframe; each landmark moves with the keyframe that
 //! created it; both keyframes of the loop are anchored; then global BA refines all
@@ -38,6 +43,12 @@ pub struct LoopConfig {
     /// before a sighting of it closes a loop, m; bag-of-words candidates must lie at least
     /// this far back along the path.
     pub min_path_m: f64,
+    /// A tag sighting closes a loop only when the body pose it gives lies within this
+    /// distance of the body at one of the tag's registering sightings (every sighting of
+    /// the first visit is kept, and the nearest one is the loop's other end), m: a loop
+    /// joins two nearby poses, whose views overlap, as the scoring's
+    /// `scoring.loop_distance_m` expects; a sighting from farther waits for a nearer one.
+    pub max_tag_loop_distance_m: f64,
     /// Largest gap between the two tracked frames a sighting's stamp is interpolated
     /// between, s.
     pub max_pose_gap_s: f64,
@@ -66,6 +77,7 @@ impl Default for LoopConfig {
         LoopConfig {
             method: LoopMethod::Tags,
             min_path_m: 5.0,
+            max_tag_loop_distance_m: 1.0,
             max_pose_gap_s: 0.25,
             odometry_sigma_m: 0.01,
             odometry_sigma_rad: 0.005,
@@ -85,6 +97,10 @@ impl LoopConfig {
         check(
             self.min_path_m.is_finite() && self.min_path_m >= 0.0,
             "slam.loop_closure.min_path_m must be a non-negative number",
+        )?;
+        check(
+            positive(self.max_tag_loop_distance_m),
+            "slam.loop_closure.max_tag_loop_distance_m must be positive",
         )?;
         check(
             positive(self.max_pose_gap_s),
@@ -172,15 +188,28 @@ pub struct LoopClosure {
 /// A registered tag.
 #[derive(Clone, Debug)]
 struct TagRecord {
+    /// The sightings of the first visit (up to [`MAX_REGISTERED_SIGHTINGS`]).
+    sightings: Vec<StoredSighting>,
+    /// Path length at the registration, m.
+    registered_path_m: f64,
+    /// Path length at the registration or the last loop, m.
+    path_m: f64,
+}
+
+/// A sighting kept relative to its keyframe.
+#[derive(Clone, Debug)]
+struct StoredSighting {
     keyframe: u32,
+    keyframe_from_body: Isometry3<f64>,
     keyframe_from_camera: Isometry3<f64>,
     camera_from_tag: Isometry3<f64>,
     /// Covariance of the sighting's `camera_from_tag` over `(δω, δt)`, if known.
     covariance: Option<Matrix6<f64>>,
     stamp: Nanos,
-    /// Path length at the registration or the last loop, m.
-    path_m: f64,
 }
+
+/// Sightings kept from a tag's first visit.
+const MAX_REGISTERED_SIGHTINGS: usize = 64;
 
 /// Counters of the tag loop closer.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -191,6 +220,9 @@ pub struct LoopStats {
     pub sightings_without_pose: usize,
     /// Tags registered.
     pub tags_registered: usize,
+    /// Sightings that would have closed a loop but gave a pose farther than
+    /// `max_tag_loop_distance_m` from every registering sighting.
+    pub sightings_too_far: usize,
 }
 
 /// Registers tags and closes loops at them (see the module docs).
@@ -246,15 +278,20 @@ impl TagLoopCloser {
         self.stats.sightings += 1;
         let keyframe_from_camera = keyframe_from_body * body_from_camera;
         let path_m = path_length_to(tracker, keyframe);
-        let Some(record) = self.tags.get(&sighting.id) else {
+        let stored = StoredSighting {
+            keyframe,
+            keyframe_from_body,
+            keyframe_from_camera,
+            camera_from_tag: sighting.camera_from_tag,
+            covariance,
+            stamp,
+        };
+        let Some(record) = self.tags.get_mut(&sighting.id) else {
             self.tags.insert(
                 sighting.id,
                 TagRecord {
-                    keyframe,
-                    keyframe_from_camera,
-                    camera_from_tag: sighting.camera_from_tag,
-                    covariance,
-                    stamp,
+                    sightings: vec![stored],
+                    registered_path_m: path_m,
                     path_m,
                 },
             );
@@ -262,6 +299,28 @@ impl TagLoopCloser {
             return None;
         };
         if path_m - record.path_m < self.cfg.min_path_m {
+            if path_m - record.registered_path_m < self.cfg.min_path_m
+                && record.sightings.len() < MAX_REGISTERED_SIGHTINGS
+            {
+                record.sightings.push(stored);
+            }
+            return None;
+        }
+        // The registering sighting nearest to where this one puts the body.
+        let body_a_from_body_b = |r: &StoredSighting| {
+            r.keyframe_from_body.inverse()
+                * r.keyframe_from_camera
+                * r.camera_from_tag
+                * (keyframe_from_camera * sighting.camera_from_tag).inverse()
+                * keyframe_from_body
+        };
+        let (distance, record) = record
+            .sightings
+            .iter()
+            .map(|r| (body_a_from_body_b(r).translation.vector.norm(), r))
+            .min_by(|x, y| x.0.total_cmp(&y.0))?;
+        if distance > self.cfg.max_tag_loop_distance_m {
+            self.stats.sightings_too_far += 1;
             return None;
         }
         let started = std::time::Instant::now();
@@ -527,7 +586,10 @@ mod tests {
         let mut tracker =
             Tracker::new(TrackingConfig::default(), &OrbConfig::default(), rig).unwrap();
         let mut closer = TagLoopCloser::new(LoopConfig::default()).unwrap();
-        let (t_first, t_again) = (1.0, 15.0);
+        // The first visit: three sightings; the return: one from 1.1 m past the nearest
+        // registering pose (too far), then one from where the second was made.
+        let first_visit = [0.6, 1.0, 1.4];
+        let (t_first, t_far, t_again) = (1.0, 12.3, 15.0);
         let n = (15.2 * RATE_HZ) as i64;
         for i in 0..n {
             let t = i as f64 / RATE_HZ;
@@ -541,21 +603,35 @@ mod tests {
                     camera,
                     stamp: Nanos::from_secs_f64(t),
                     features,
+                    rotation_from_frame: None,
                 })
                 .collect();
             tracker.track(Nanos::from_secs_f64(t), &inputs);
-            if (t - (t_first + 0.1)).abs() < 0.5 / RATE_HZ {
-                let r = closer.on_sighting(
-                    &mut tracker,
-                    Nanos::from_secs_f64(t_first),
-                    &sighting(t_first),
-                    &body_from_side_camera(),
-                    None,
-                );
-                assert!(r.is_none(), "the first sighting registers the tag");
+            for ts in first_visit {
+                if (t - (ts + 0.1)).abs() < 0.5 / RATE_HZ {
+                    let r = closer.on_sighting(
+                        &mut tracker,
+                        Nanos::from_secs_f64(ts),
+                        &sighting(ts),
+                        &body_from_side_camera(),
+                        None,
+                    );
+                    assert!(r.is_none(), "the first visit registers the tag");
+                }
             }
         }
         assert_eq!(closer.stats().tags_registered, 1);
+        assert_eq!(closer.stats().sightings, 3);
+        // 12.3 s: x = 1.85 m, 1.15 m from the nearest registering pose (x = 0.7 m).
+        let far = closer.on_sighting(
+            &mut tracker,
+            Nanos::from_secs_f64(t_far),
+            &sighting(t_far),
+            &body_from_side_camera(),
+            None,
+        );
+        assert!(far.is_none(), "a sighting 1.15 m away closes no loop");
+        assert_eq!(closer.stats().sightings_too_far, 1);
         let clean = rmse(&tracker);
         // Drift, growing along the keyframes up to 8 cm and 1.5 deg of yaw at the end;
         // each landmark drifts with the keyframe that created it.

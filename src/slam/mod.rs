@@ -1,8 +1,8 @@
 //! Multi-camera stereo visual SLAM (issue #7; Kokas et al., "Multicamera Visual SLAM for
 //! Vineyard Inspection").
 //!
-//! Behind the ground-truth firewall like the estimator and the mapper: it sees image and
-//! `CameraInfo` messages and `/tf_static` only. In data-flow order:
+//! Behind the ground-truth firewall like the estimator and the mapper: it sees image,
+//! `CameraInfo` and IMU messages and `/tf_static` only. In data-flow order:
 //!
 //! - [`image`]: [`GrayImage`] from an `ImageMsg`, the scale [`Pyramid`], the 7×7 blur.
 //! - [`fast`]: FAST-9 with a score, non-maximum suppression, per-cell adaptive threshold.
@@ -14,6 +14,8 @@
 //! - [`motion_ba`]: motion-only bundle adjustment of the rig pose over the observations
 //!   of every camera through the rig extrinsics (eqs. 1-3), Huber kernel, level weights,
 //!   ORB-SLAM-style outlier rounds.
+//! - [`gyro`]: the body's rotation between two stamps from the IMU, for free-running
+//!   cameras.
 //! - [`tracking`] and [`map`]: constant-velocity tracking by projection search, keyframes,
 //!   landmark culling, local BA.
 //! - [`bundle`]: local and global bundle adjustment of keyframe poses and landmarks
@@ -21,6 +23,8 @@
 //! - [`tags`]: AprilTag (tag36h11) detection on the tag camera and the tag's pose from its
 //!   corners through the lens model.
 //! - [`pose_graph`]: SE(3) pose graph over the keyframes.
+//! - [`block_cholesky`]: the sparse block Cholesky factorization that bundle adjustment
+//!   and the pose graph solve their keyframe systems with.
 //! - [`loop_closing`]: tags registered at their first sighting; a sighting after the
 //!   robot went away closes a loop (pose graph, landmarks moved, global BA).
 //! - [`bow`]: bag-of-words vocabulary, keyframe database and DBoW2-style loop detection
@@ -39,11 +43,13 @@
 //! ```
 
 pub mod bench;
+pub mod block_cholesky;
 pub mod bow;
 pub mod bundle;
 pub mod fast;
 pub mod frontend;
 pub mod grid;
+pub mod gyro;
 pub mod image;
 pub mod loop_closing;
 pub mod map;
@@ -112,6 +118,7 @@ pub fn estimator_output(out: &SlamOutput) -> crate::estimator::EstimatorOutput {
             "tag_sightings_without_pose",
             out.loop_stats.sightings_without_pose,
         ),
+        ("tag_sightings_too_far", out.loop_stats.sightings_too_far),
         ("loops", out.loops.len()),
     ] {
         if out.tag_images > 0 {

@@ -576,6 +576,7 @@ mod tests {
                     camera,
                     stamp: Nanos::from_secs_f64(t),
                     features,
+                    rotation_from_frame: None,
                 })
                 .collect();
             tracker.track(Nanos::from_secs_f64(t), &inputs);

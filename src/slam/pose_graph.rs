@@ -35,22 +35,14 @@
 //! (so a free pose that no edge constrains stays well-defined), `λ` divided by 10 after a
 //! step that lowers the cost and multiplied by 10 after one that does not. The graph is a
 //! long chain plus a few loop and covisibility edges, so `H` is block-sparse; it is solved
-//! by a sparse block Cholesky factorization `LLᵀ`:
-//!
-//! - the elimination order is an exact **minimum-degree** ordering of the block graph (ties
-//!   broken by the lowest pose index), computed once per [`PoseGraph::optimize`] while
-//!   simulating the elimination, which also gives the structure of `L` (the neighbours of
-//!   a node when it is eliminated are the rows of its column). A chain closed by one loop
-//!   edge is eliminated from its start around the cycle, two off-diagonal blocks per
-//!   column (the natural order would do as well there: its envelope is the chain plus the
-//!   last row). It matters with covisibility edges across the chain: on a serpentine over
-//!   10 vineyard rows of 100 keyframes, each keyframe also tied to the one beside it in
-//!   the previous row, `L` has 7 345 off-diagonal blocks, where the natural order's
-//!   envelope (what a profile Cholesky fills) holds 90 899.
-//! - the numeric factorization is right-looking over 6×6 blocks: each diagonal block is
-//!   factored and inverted (`L_jj⁻¹`), the column below is scaled and its outer products are
-//!   subtracted from the later blocks, in a precomputed list; the two triangular solves
-//!   follow. Each `λ` tried refactors the damped matrix from the undamped `H`.
+//! by the sparse block Cholesky factorization of [`block_cholesky`](super::block_cholesky)
+//! (minimum-degree order computed once per [`PoseGraph::optimize`], right-looking
+//! numeric factorization over 6×6 blocks). A chain closed by one loop edge is eliminated
+//! from its start around the cycle, two off-diagonal blocks per column. With covisibility
+//! edges across the chain, on a serpentine over 10 vineyard rows of 100 keyframes, each
+//! keyframe also tied to the one beside it in the previous row, `L` has 7 345
+//! off-diagonal blocks, where the natural order's envelope (what a profile Cholesky fills)
+//! holds 90 899. Each `λ` tried refactors the damped matrix from the undamped `H`.
 //!
 //! For a chain of N poses with one loop edge this is O(N) per iteration: the 1000-pose
 //! loop closure of [`bench_chain`] takes 6 iterations and about 5 ms in all on one core.
@@ -92,7 +84,6 @@
 //! assert!((x3 - Vector3::new(3.225, 0.0, 0.0)).norm() < 1e-9);
 //! ```
 
-use std::collections::BTreeSet;
 use std::time::Instant;
 
 use nalgebra::{
@@ -100,6 +91,7 @@ use nalgebra::{
 };
 use thiserror::Error;
 
+use super::block_cholesky::{BlockCholesky, BlockStructure, lower_cholesky_inverse};
 use super::{ConfigError, check};
 
 /// Default of [`PoseGraphConfig::max_iterations`].
@@ -659,59 +651,15 @@ fn linearize_edge(
     (e, ja, jb)
 }
 
-/// `L⁻¹` for the lower Cholesky factor `L` of the symmetric 6×6 `m` (its lower triangle
-/// is read); `None` unless positive definite.
-fn lower_cholesky_inverse(m: &Matrix6<f64>) -> Option<Matrix6<f64>> {
-    let mut l = Matrix6::zeros();
-    for j in 0..6 {
-        let mut d = m[(j, j)];
-        for k in 0..j {
-            d -= l[(j, k)] * l[(j, k)];
-        }
-        if d.is_nan() || d <= 0.0 || d.is_infinite() {
-            return None;
-        }
-        let djj = d.sqrt();
-        l[(j, j)] = djj;
-        for i in j + 1..6 {
-            let mut s = m[(i, j)];
-            for k in 0..j {
-                s -= l[(i, k)] * l[(j, k)];
-            }
-            l[(i, j)] = s / djj;
-        }
-    }
-    let mut inv = Matrix6::zeros();
-    for j in 0..6 {
-        inv[(j, j)] = 1.0 / l[(j, j)];
-        for i in j + 1..6 {
-            let mut s = 0.0;
-            for k in j..i {
-                s -= l[(i, k)] * inv[(k, j)];
-            }
-            inv[(i, j)] = s / l[(i, i)];
-        }
-    }
-    Some(inv)
-}
-
-/// The block structure of the normal equations over the free poses, in elimination
-/// order, and the symbolic factorization (the structure of `L`, whose off-diagonal
-/// blocks hold those of `H` where `H` has them).
+/// The normal equations' block structure over the free poses ([`BlockStructure`]: the
+/// elimination order and the structure of `L`) and where each edge's block goes.
 struct Structure {
+    /// The free poses and their couplings, in elimination order.
+    blocks: BlockStructure,
     /// Position in the elimination order of each pose (`None`: fixed).
     position: Vec<Option<usize>>,
     /// The pose at each position.
     pose_at: Vec<usize>,
-    /// Column `j`'s off-diagonal blocks are the slots `col_start[j]..col_start[j + 1]`.
-    col_start: Vec<usize>,
-    /// The row (position, increasing within a column, all below the diagonal) of each slot.
-    rows: Vec<usize>,
-    /// Column `j`'s Schur updates are `updates[update_start[j]..update_start[j + 1]]`.
-    update_start: Vec<usize>,
-    /// `(target, s, t)`: `block[target] -= block[s] · block[t]ᵀ`, the rows of `s` and `t`
-    /// being the row and column of `target`.
-    updates: Vec<(usize, usize, usize)>,
     /// Per edge between two free poses: its off-diagonal slot and whether `a` is the row.
     edge_slot: Vec<Option<(usize, bool)>>,
 }
@@ -728,94 +676,35 @@ impl Structure {
                 pose_of_var.push(pose);
             }
         }
-        let n = pose_of_var.len();
-        let mut adj: Vec<BTreeSet<usize>> = vec![BTreeSet::new(); n];
-        for e in edges {
-            if let (Some(u), Some(v)) = (var_of[e.a], var_of[e.b]) {
-                if u != v {
-                    adj[u].insert(v);
-                    adj[v].insert(u);
-                }
-            }
-        }
-        // Exact minimum degree on the elimination graph; ties by the lowest variable
-        // (= pose order). A node's neighbours when it is eliminated are its column of L.
-        let mut queue: BTreeSet<(usize, usize)> = (0..n).map(|v| (adj[v].len(), v)).collect();
-        let mut order = Vec::with_capacity(n);
-        let mut column_of_var = vec![Vec::new(); n];
-        while let Some((_, v)) = queue.pop_first() {
-            let nbrs: Vec<usize> = std::mem::take(&mut adj[v]).into_iter().collect();
-            for &u in &nbrs {
-                queue.remove(&(adj[u].len(), u));
-                adj[u].remove(&v);
-                adj[u].extend(nbrs.iter().copied().filter(|&w| w != u));
-                queue.insert((adj[u].len(), u));
-            }
-            order.push(v);
-            column_of_var[v] = nbrs;
-        }
-        let mut position_of_var = vec![0; n];
-        for (p, &v) in order.iter().enumerate() {
-            position_of_var[v] = p;
-        }
-        let mut col_start = Vec::with_capacity(n + 1);
-        let mut rows = Vec::new();
-        for &v in &order {
-            col_start.push(rows.len());
-            let start = rows.len();
-            rows.extend(column_of_var[v].iter().map(|&u| position_of_var[u]));
-            rows[start..].sort_unstable();
-        }
-        col_start.push(rows.len());
-        let mut structure = Structure {
+        let blocks = BlockStructure::new(
+            pose_of_var.len(),
+            edges
+                .iter()
+                .filter_map(|e| Some((var_of[e.a]?, var_of[e.b]?))),
+        );
+        let edge_slot = edges
+            .iter()
+            .map(|e| match (var_of[e.a], var_of[e.b]) {
+                (Some(a), Some(b)) if a != b => Some(blocks.block(a, b)),
+                _ => None,
+            })
+            .collect();
+        Structure {
             position: var_of
                 .iter()
-                .map(|v| v.map(|v| position_of_var[v]))
+                .map(|v| v.map(|v| blocks.position(v)))
                 .collect(),
-            pose_at: order.iter().map(|&v| pose_of_var[v]).collect(),
-            col_start,
-            rows,
-            update_start: Vec::with_capacity(n + 1),
-            updates: Vec::new(),
-            edge_slot: Vec::with_capacity(edges.len()),
-        };
-        for j in 0..n {
-            structure.update_start.push(structure.updates.len());
-            let (start, end) = (structure.col_start[j], structure.col_start[j + 1]);
-            for s in start..end {
-                for t in start..s {
-                    let target = structure.slot(structure.rows[t], structure.rows[s]);
-                    structure.updates.push((target, s, t));
-                }
-            }
+            pose_at: (0..blocks.len())
+                .map(|p| pose_of_var[blocks.variable_at(p)])
+                .collect(),
+            blocks,
+            edge_slot,
         }
-        structure.update_start.push(structure.updates.len());
-        for e in edges {
-            let slot = match (structure.position[e.a], structure.position[e.b]) {
-                (Some(pa), Some(pb)) if pa != pb => {
-                    Some((structure.slot(pa.min(pb), pa.max(pb)), pa > pb))
-                }
-                _ => None,
-            };
-            structure.edge_slot.push(slot);
-        }
-        structure
     }
 
     /// Free poses.
     fn len(&self) -> usize {
         self.pose_at.len()
-    }
-
-    /// The slot of block `(row, col)`, `row > col`. The elimination makes the neighbours
-    /// of an eliminated node a clique, so every pair of rows of a column, and every edge,
-    /// has its block in the column eliminated first.
-    fn slot(&self, col: usize, row: usize) -> usize {
-        let (start, end) = (self.col_start[col], self.col_start[col + 1]);
-        start
-            + self.rows[start..end]
-                .binary_search(&row)
-                .expect("the elimination graph holds every fill block")
     }
 
     /// `H = Σ JᵀΛJ` and `g = Σ JᵀΛe` over the free poses, in edge order.
@@ -861,7 +750,7 @@ impl Normal {
     fn new(structure: &Structure) -> Normal {
         Normal {
             diag: vec![Matrix6::zeros(); structure.len()],
-            off: vec![Matrix6::zeros(); structure.rows.len()],
+            off: vec![Matrix6::zeros(); structure.blocks.n_blocks()],
             grad: vec![Vector6::zeros(); structure.len()],
         }
     }
@@ -869,10 +758,10 @@ impl Normal {
 
 /// The factorization's buffers and the step.
 struct Factor {
-    /// `L_jj⁻¹` after the factorization.
-    diag: Vec<Matrix6<f64>>,
-    /// `L`'s off-diagonal blocks after the factorization.
-    off: Vec<Matrix6<f64>>,
+    /// The damped diagonal blocks.
+    damped: Vec<Matrix6<f64>>,
+    /// The factorization.
+    cholesky: BlockCholesky,
     /// The step `δ` of each position.
     x: Vec<Vector6<f64>>,
 }
@@ -881,8 +770,8 @@ impl Factor {
     /// Buffers for `structure`.
     fn new(structure: &Structure) -> Factor {
         Factor {
-            diag: vec![Matrix6::zeros(); structure.len()],
-            off: vec![Matrix6::zeros(); structure.rows.len()],
+            damped: vec![Matrix6::zeros(); structure.len()],
+            cholesky: BlockCholesky::new(&structure.blocks),
             x: vec![Vector6::zeros(); structure.len()],
         }
     }
@@ -890,50 +779,22 @@ impl Factor {
     /// Solves `(H + λ (diag(H) + floor)) x = -g` into `self.x`; `false` when a pivot
     /// block is not positive definite.
     fn solve(&mut self, structure: &Structure, normal: &Normal, lambda: f64, floor: f64) -> bool {
-        self.diag.clone_from(&normal.diag);
-        self.off.clone_from(&normal.off);
-        let s = structure;
-        for j in 0..s.len() {
-            let mut d = self.diag[j];
+        for (d, h) in self.damped.iter_mut().zip(&normal.diag) {
+            *d = *h;
             for i in 0..6 {
-                d[(i, i)] += lambda * (normal.diag[j][(i, i)] + floor);
-            }
-            let Some(l_inv) = lower_cholesky_inverse(&d) else {
-                return false;
-            };
-            self.diag[j] = l_inv;
-            let l_inv_t = l_inv.transpose();
-            let column = s.col_start[j]..s.col_start[j + 1];
-            for slot in column.clone() {
-                self.off[slot] *= l_inv_t;
-            }
-            for slot in column {
-                let b = self.off[slot];
-                self.diag[s.rows[slot]] -= b * b.transpose();
-            }
-            for &(target, a, b) in &s.updates[s.update_start[j]..s.update_start[j + 1]] {
-                let u = self.off[a] * self.off[b].transpose();
-                self.off[target] -= u;
+                d[(i, i)] += lambda * (h[(i, i)] + floor);
             }
         }
-        // L y = -g, then Lᵀ x = y, in place.
+        if !self
+            .cholesky
+            .factor(&structure.blocks, &self.damped, &normal.off)
+        {
+            return false;
+        }
         for (x, g) in self.x.iter_mut().zip(&normal.grad) {
             *x = -g;
         }
-        for j in 0..s.len() {
-            let y = self.diag[j] * self.x[j];
-            self.x[j] = y;
-            for slot in s.col_start[j]..s.col_start[j + 1] {
-                self.x[s.rows[slot]] -= self.off[slot] * y;
-            }
-        }
-        for j in (0..s.len()).rev() {
-            let mut y = self.x[j];
-            for slot in s.col_start[j]..s.col_start[j + 1] {
-                y -= self.off[slot].tr_mul(&self.x[s.rows[slot]]);
-            }
-            self.x[j] = self.diag[j].tr_mul(&y);
-        }
+        self.cholesky.solve(&structure.blocks, &mut self.x);
         true
     }
 }
@@ -1558,9 +1419,9 @@ mod tests {
         let structure = Structure::new(&graph.fixed, &graph.edges);
         assert_eq!(structure.len(), 999);
         assert!(
-            structure.rows.len() <= 2 * 999,
+            structure.blocks.n_blocks() <= 2 * 999,
             "{} off-diagonal blocks",
-            structure.rows.len()
+            structure.blocks.n_blocks()
         );
     }
 
@@ -1619,11 +1480,11 @@ mod tests {
         let (rows, per_row) = (10, 100);
         let mut graph = serpentine(rows, per_row);
         let structure = Structure::new(&graph.fixed, &graph.edges);
-        let (fill, profile) = (structure.rows.len(), natural_profile(&graph));
+        let (fill, profile) = (structure.blocks.n_blocks(), natural_profile(&graph));
         println!(
             "serpentine {rows}x{per_row}: L has {fill} off-diagonal blocks \
              ({} Schur updates) with minimum degree, the natural envelope {profile}",
-            structure.updates.len()
+            structure.blocks.n_updates()
         );
         assert!(
             fill * 5 < profile,

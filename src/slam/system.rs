@@ -14,6 +14,7 @@
 
 use super::bow::Vocabulary;
 use super::frontend::{FrontEndConfig, StereoFrame, StereoFrontEnd};
+use super::gyro::GyroBuffer;
 use super::image::{GrayImage, ImageError};
 use super::loop_closing::{LoopClosure, LoopConfig, LoopMethod, LoopStats, TagLoopCloser};
 use super::motion_ba::RigCamera;
@@ -23,7 +24,7 @@ use super::tracking::{
     CameraInput, FrameResult, Tracker, TrackerCamera, TrackerStats, TrackingConfig, TrackingLoss,
 };
 use super::{ConfigError, check};
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -42,6 +43,10 @@ pub struct SlamConfig {
     /// Pairs of other cameras stamped further than this from the primary's are not
     /// used with it, s.
     pub max_camera_offset_s: f64,
+    /// Turn the cameras stamped away from the primary's pair by the rotation the IMU's
+    /// gyro (`/imu/data`) measured in between ([`GyroBuffer`]); without it (or before
+    /// the first samples) a constant-velocity guess is used.
+    pub use_gyro: bool,
     /// Feature extraction and stereo matching.
     pub features: FrontEndConfig,
     /// Tracking and local mapping.
@@ -116,6 +121,7 @@ impl Default for SlamConfig {
             enabled: false,
             cameras: vec!["front".to_string(), "rear".to_string()],
             max_camera_offset_s: 0.1,
+            use_gyro: true,
             features: FrontEndConfig::default(),
             tracking: TrackingConfig::default(),
             tags: TagConfig::default(),
@@ -200,6 +206,12 @@ pub enum SlamError {
         /// What is wrong.
         problem: String,
     },
+    /// An IMU message with a field that is not usable.
+    #[error("SLAM input {0}")]
+    Imu(#[from] vinebench_msgs::msg::InvalidMessage),
+    /// The IMU's frame missing from `/tf_static`.
+    #[error("SLAM IMU (slam.use_gyro): frame `{0}` is not in /tf_static")]
+    UnknownImuFrame(String),
     /// A camera frame missing from `/tf_static`.
     #[error("SLAM camera {camera}: frame `{frame}` is not in /tf_static")]
     UnknownFrame {
@@ -279,6 +291,10 @@ pub struct VisualSlam {
     busy_s: f64,
     tags: Option<TagSlot>,
     bow: Option<BowLoopCloser>,
+    /// Body-frame angular rates (with `use_gyro`).
+    gyro: GyroBuffer,
+    /// `body_from_imu`'s rotation, once the first IMU message named its frame.
+    body_from_imu: Option<UnitQuaternion<f64>>,
 }
 
 /// The tag camera's input and the loop closer.
@@ -369,6 +385,8 @@ impl VisualSlam {
             busy_s: 0.0,
             tags,
             bow,
+            gyro: GyroBuffer::default(),
+            body_from_imu: None,
         })
     }
 
@@ -443,6 +461,24 @@ impl VisualSlam {
                     }
                     t.info = Some((camera, body_from_camera));
                 }
+                Ok(())
+            }
+            Message::Imu(imu) if self.cfg.use_gyro => {
+                msg.validate()?;
+                let body_from_imu = match self.body_from_imu {
+                    Some(r) => r,
+                    None => {
+                        let frame = imu.frame_id.as_str();
+                        let r = self
+                            .static_transforms
+                            .body_from(frame)
+                            .ok_or_else(|| SlamError::UnknownImuFrame(frame.to_string()))?
+                            .rotation;
+                        *self.body_from_imu.insert(r)
+                    }
+                };
+                self.gyro
+                    .push(imu.stamp, body_from_imu * imu.angular_velocity);
                 Ok(())
             }
             _ => Ok(()),
@@ -553,10 +589,14 @@ impl VisualSlam {
                 && Nanos((*t - stamp).0.abs()) <= max_offset
             {
                 *used = true;
+                let rotation_from_frame = (self.cfg.use_gyro && *t != stamp)
+                    .then(|| self.gyro.rotation(stamp, *t))
+                    .flatten();
                 inputs.push(CameraInput {
                     camera,
                     stamp: *t,
                     features: frame,
+                    rotation_from_frame,
                 });
             }
         }
