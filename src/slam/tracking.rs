@@ -820,9 +820,14 @@ impl Tracker {
         let mut second =
             optimize_pose(&rig, &obs, &first.world_from_body, &self.motion_cfg).ok()?;
         let rig = if offset {
-            let rig = refined_rig(self, &second.world_from_body, rig);
-            second = optimize_pose(&rig, &obs, &second.world_from_body, &self.motion_cfg).ok()?;
-            rig
+            let refined = refined_rig(self, &second.world_from_body, rig.clone());
+            match optimize_pose(&refined, &obs, &second.world_from_body, &self.motion_cfg) {
+                Ok(third) => {
+                    second = third;
+                    refined
+                }
+                Err(_) => rig,
+            }
         } else {
             rig
         };
