@@ -560,6 +560,14 @@ mod tests {
         }
     }
 
+    /// The side camera's sighting of the tag at `t` (true pose), handed to `closer`.
+    fn see(closer: &mut TagLoopCloser, tracker: &mut Tracker, t: f64) -> Option<LoopClosure> {
+        let stamp = Nanos::from_secs_f64(t);
+        closer
+            .on_sighting(tracker, stamp, &sighting(t), &body_from_side_camera(), None)
+            .cloned()
+    }
+
     fn rmse(tracker: &Tracker) -> f64 {
         let traj = tracker.trajectory();
         let se: f64 = traj
@@ -586,7 +594,7 @@ mod tests {
         let mut tracker =
             Tracker::new(TrackingConfig::default(), &OrbConfig::default(), rig).unwrap();
         let mut closer = TagLoopCloser::new(LoopConfig::default()).unwrap();
-        // The first visit: three sightings; the return: one from 1.1 m past the nearest
+        // The first visit: three sightings; the return: one from 1.15 m past the nearest
         // registering pose (too far), then one from where the second was made.
         let first_visit = [0.6, 1.0, 1.4];
         let (t_first, t_far, t_again) = (1.0, 12.3, 15.0);
@@ -609,13 +617,7 @@ mod tests {
             tracker.track(Nanos::from_secs_f64(t), &inputs);
             for ts in first_visit {
                 if (t - (ts + 0.1)).abs() < 0.5 / RATE_HZ {
-                    let r = closer.on_sighting(
-                        &mut tracker,
-                        Nanos::from_secs_f64(ts),
-                        &sighting(ts),
-                        &body_from_side_camera(),
-                        None,
-                    );
+                    let r = see(&mut closer, &mut tracker, ts);
                     assert!(r.is_none(), "the first visit registers the tag");
                 }
             }
@@ -623,13 +625,7 @@ mod tests {
         assert_eq!(closer.stats().tags_registered, 1);
         assert_eq!(closer.stats().sightings, 3);
         // 12.3 s: x = 1.85 m, 1.15 m from the nearest registering pose (x = 0.7 m).
-        let far = closer.on_sighting(
-            &mut tracker,
-            Nanos::from_secs_f64(t_far),
-            &sighting(t_far),
-            &body_from_side_camera(),
-            None,
-        );
+        let far = see(&mut closer, &mut tracker, t_far);
         assert!(far.is_none(), "a sighting 1.15 m away closes no loop");
         assert_eq!(closer.stats().sightings_too_far, 1);
         let clean = rmse(&tracker);
@@ -659,16 +655,8 @@ mod tests {
             (p.translation.vector - slam_truth(t_again).translation.vector).norm()
         };
         let end_before = end_error(&tracker);
-        let closure = closer
-            .on_sighting(
-                &mut tracker,
-                end,
-                &sighting(t_again),
-                &body_from_side_camera(),
-                None,
-            )
-            .cloned()
-            .expect("a loop at the tag seen again");
+        let closure =
+            see(&mut closer, &mut tracker, t_again).expect("a loop at the tag seen again");
         let end_after = end_error(&tracker);
         let corrected = rmse(&tracker);
         println!(
@@ -683,17 +671,7 @@ mod tests {
         assert!(corrected < 0.25 * drifted, "rmse {drifted} -> {corrected}");
         assert!(closure.global_ba.is_some());
         // A second sighting right after is no new loop (not min_path_m travelled).
-        assert!(
-            closer
-                .on_sighting(
-                    &mut tracker,
-                    end,
-                    &sighting(t_again),
-                    &body_from_side_camera(),
-                    None,
-                )
-                .is_none()
-        );
+        assert!(see(&mut closer, &mut tracker, t_again).is_none());
         assert_eq!(closer.loops().len(), 1);
     }
 
