@@ -495,11 +495,12 @@ pub fn path_length_to(tracker: &Tracker, k: u32) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
     use crate::slam::bench::synthetic_rig;
     use crate::slam::frontend::StereoFrame;
+    use crate::slam::motion_ba::RigCamera;
     use crate::slam::orb::OrbConfig;
     use crate::slam::tracking::tests::{BASELINE_M, observe, world};
     use crate::slam::tracking::{CameraInput, TrackerCamera, TrackingConfig};
@@ -509,12 +510,12 @@ mod tests {
 
     const RATE_HZ: f64 = 15.0;
 
-    /// 0.5 m/s forward along x for 8 s, then backward to the start (same heading).
-    fn truth(t: f64) -> Isometry3<f64> {
-        let x = if t <= 8.0 {
+    /// 0.5 m/s forward along x for `turn_s`, then backward to the start (same heading).
+    pub fn out_and_back(t: f64, turn_s: f64) -> Isometry3<f64> {
+        let x = if t <= turn_s {
             0.5 * t
         } else {
-            4.0 - 0.5 * (t - 8.0)
+            0.5 * turn_s - 0.5 * (t - turn_s)
         };
         Isometry3::from_parts(
             Translation3::new(x, 0.05 * (0.5 * t).sin(), 0.0),
@@ -522,9 +523,91 @@ mod tests {
         )
     }
 
-    /// The truth in the SLAM's world (the body at the first frame).
-    fn slam_truth(t: f64) -> Isometry3<f64> {
+    /// This test's run: out for 8 s and back.
+    fn truth(t: f64) -> Isometry3<f64> {
+        out_and_back(t, 8.0)
+    }
+
+    /// `truth` in the SLAM's world (the body at the first frame).
+    pub fn in_slam_world(truth: impl Fn(f64) -> Isometry3<f64>, t: f64) -> Isometry3<f64> {
         truth(0.0).inverse() * truth(t)
+    }
+
+    fn slam_truth(t: f64) -> Isometry3<f64> {
+        in_slam_world(truth, t)
+    }
+
+    /// A tracker of the synthetic rig's front and rear pairs, and the rig.
+    pub fn front_rear_tracker() -> (Tracker, Vec<RigCamera>) {
+        let full = synthetic_rig();
+        let rig: Vec<TrackerCamera> = (0..2)
+            .map(|c| TrackerCamera {
+                camera: full[c].clone(),
+                baseline_m: BASELINE_M,
+            })
+            .collect();
+        let tracker = Tracker::new(TrackingConfig::default(), &OrbConfig::default(), rig).unwrap();
+        (tracker, full)
+    }
+
+    /// Tracks the synchronous front and rear pairs seen from `world_from_body` at `t`.
+    pub fn track_front_rear(
+        tracker: &mut Tracker,
+        full: &[RigCamera],
+        landmarks: &[(Vector3<f64>, crate::slam::Descriptor)],
+        rng: &mut ChaCha8Rng,
+        world_from_body: &Isometry3<f64>,
+        t: f64,
+    ) {
+        let frames: Vec<StereoFrame> = (0..2)
+            .map(|c| observe(&full[c], world_from_body, landmarks, rng))
+            .collect();
+        let inputs: Vec<CameraInput> = frames
+            .iter()
+            .enumerate()
+            .map(|(camera, features)| CameraInput {
+                camera,
+                stamp: Nanos::from_secs_f64(t),
+                features,
+                rotation_from_frame: None,
+            })
+            .collect();
+        tracker.track(Nanos::from_secs_f64(t), &inputs);
+    }
+
+    /// Drift injected into the map, growing along the keyframes up to 8 cm and 1.5° of
+    /// yaw at the end; each landmark drifts with the keyframe that created it.
+    pub fn inject_drift(tracker: &mut Tracker) {
+        let map = tracker.map_mut();
+        let n_kf = map.keyframes.len();
+        let drift = |k: usize| {
+            let f = k as f64 / (n_kf - 1) as f64;
+            Isometry3::from_parts(
+                Translation3::new(0.03 * f, 0.07 * f, 0.01 * f),
+                UnitQuaternion::from_euler_angles(0.0, 0.0, 0.026 * f),
+            )
+        };
+        for (k, kf) in map.keyframes.iter_mut().enumerate() {
+            kf.world_from_body = drift(k) * kf.world_from_body;
+        }
+        for lm in map.landmarks.iter_mut() {
+            lm.position = (drift(lm.created_by as usize) * Point3::from(lm.position)).coords;
+        }
+        tracker.refresh_last_pose();
+    }
+
+    /// RMS position error of the tracker's trajectory against `truth`, m.
+    pub fn rmse_against(tracker: &Tracker, truth: impl Fn(f64) -> Isometry3<f64>) -> f64 {
+        let traj = tracker.trajectory();
+        let se: f64 = traj
+            .iter()
+            .map(|(t, p)| {
+                let e = in_slam_world(&truth, t.as_secs_f64()).translation.vector
+                    - p.translation.vector;
+                e.norm_squared()
+            })
+            .sum();
+        (se / traj.len() as f64).sqrt()
     }
 
     /// A side camera looking right (body -y), optical frame x right, y down, z forward.
@@ -569,30 +652,14 @@ mod tests {
     }
 
     fn rmse(tracker: &Tracker) -> f64 {
-        let traj = tracker.trajectory();
-        let se: f64 = traj
-            .iter()
-            .map(|(t, p)| {
-                let e = slam_truth(t.as_secs_f64()).translation.vector - p.translation.vector;
-                e.norm_squared()
-            })
-            .sum();
-        (se / traj.len() as f64).sqrt()
+        rmse_against(tracker, truth)
     }
 
     #[test]
     fn a_tag_seen_again_takes_out_an_injected_drift() {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let landmarks = world(&mut rng);
-        let full = synthetic_rig();
-        let rig: Vec<TrackerCamera> = (0..2)
-            .map(|c| TrackerCamera {
-                camera: full[c].clone(),
-                baseline_m: BASELINE_M,
-            })
-            .collect();
-        let mut tracker =
-            Tracker::new(TrackingConfig::default(), &OrbConfig::default(), rig).unwrap();
+        let (mut tracker, full) = front_rear_tracker();
         let mut closer = TagLoopCloser::new(LoopConfig::default()).unwrap();
         // The first visit: three sightings; the return: one from 1.15 m past the nearest
         // registering pose (too far), then one from where the second was made.
@@ -601,20 +668,7 @@ mod tests {
         let n = (15.2 * RATE_HZ) as i64;
         for i in 0..n {
             let t = i as f64 / RATE_HZ;
-            let frames: Vec<StereoFrame> = (0..2)
-                .map(|c| observe(&full[c], &truth(t), &landmarks, &mut rng))
-                .collect();
-            let inputs: Vec<CameraInput> = frames
-                .iter()
-                .enumerate()
-                .map(|(camera, features)| CameraInput {
-                    camera,
-                    stamp: Nanos::from_secs_f64(t),
-                    features,
-                    rotation_from_frame: None,
-                })
-                .collect();
-            tracker.track(Nanos::from_secs_f64(t), &inputs);
+            track_front_rear(&mut tracker, &full, &landmarks, &mut rng, &truth(t), t);
             for ts in first_visit {
                 if (t - (ts + 0.1)).abs() < 0.5 / RATE_HZ {
                     let r = see(&mut closer, &mut tracker, ts);
@@ -629,24 +683,7 @@ mod tests {
         assert!(far.is_none(), "a sighting 1.15 m away closes no loop");
         assert_eq!(closer.stats().sightings_too_far, 1);
         let clean = rmse(&tracker);
-        // Drift, growing along the keyframes up to 8 cm and 1.5 deg of yaw at the end;
-        // each landmark drifts with the keyframe that created it.
-        let map = tracker.map_mut();
-        let n_kf = map.keyframes.len();
-        let drift = |k: usize| {
-            let f = k as f64 / (n_kf - 1) as f64;
-            Isometry3::from_parts(
-                Translation3::new(0.03 * f, 0.07 * f, 0.01 * f),
-                UnitQuaternion::from_euler_angles(0.0, 0.0, 0.026 * f),
-            )
-        };
-        for (k, kf) in map.keyframes.iter_mut().enumerate() {
-            kf.world_from_body = drift(k) * kf.world_from_body;
-        }
-        for lm in map.landmarks.iter_mut() {
-            lm.position = (drift(lm.created_by as usize) * Point3::from(lm.position)).coords;
-        }
-        tracker.refresh_last_pose();
+        inject_drift(&mut tracker);
         let drifted = rmse(&tracker);
         let end = Nanos::from_secs_f64(t_again);
         let end_error = |tracker: &Tracker| {

@@ -506,80 +506,40 @@ pub fn rigid_fit(
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
-    use crate::slam::bench::synthetic_rig;
     use crate::slam::bow::VocabularyConfig;
-    use crate::slam::frontend::StereoFrame;
-    use crate::slam::orb::OrbConfig;
-    use crate::slam::tracking::tests::{BASELINE_M, observe, world};
-    use crate::slam::tracking::{CameraInput, TrackerCamera, TrackingConfig};
+    use crate::slam::loop_closing::tests::{
+        front_rear_tracker, in_slam_world, inject_drift, out_and_back, rmse_against,
+        track_front_rear,
+    };
+    use crate::slam::tracking::tests::world;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
-    use vinebench_msgs::Nanos;
 
     const RATE_HZ: f64 = 15.0;
 
-    /// 0.5 m/s forward along x for 16 s, then backward to the start (same heading): the
-    /// cameras see the first metres again at the end, long after the local map has
-    /// dropped the keyframes that saw them.
+    /// Out for 16 s and back: the cameras see the first metres again at the end, long
+    /// after the local map has dropped the keyframes that saw them.
     fn truth(t: f64) -> Isometry3<f64> {
-        let x = if t <= 16.0 {
-            0.5 * t
-        } else {
-            8.0 - 0.5 * (t - 16.0)
-        };
-        Isometry3::from_parts(
-            Translation3::new(x, 0.05 * (0.5 * t).sin(), 0.0),
-            UnitQuaternion::from_euler_angles(0.0, 0.0, 0.03 * (0.5 * t).cos()),
-        )
+        out_and_back(t, 16.0)
     }
 
-    /// The truth in the SLAM's world (the body at the first frame).
     fn slam_truth(t: f64) -> Isometry3<f64> {
-        truth(0.0).inverse() * truth(t)
+        in_slam_world(truth, t)
     }
 
     fn rmse(tracker: &Tracker) -> f64 {
-        let traj = tracker.trajectory();
-        let se: f64 = traj
-            .iter()
-            .map(|(t, p)| {
-                let e = slam_truth(t.as_secs_f64()).translation.vector - p.translation.vector;
-                e.norm_squared()
-            })
-            .sum();
-        (se / traj.len() as f64).sqrt()
+        rmse_against(tracker, truth)
     }
 
     #[test]
     fn a_revisit_found_by_bag_of_words_takes_out_an_injected_drift() {
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let landmarks = world(&mut rng);
-        let full = synthetic_rig();
-        let rig: Vec<TrackerCamera> = (0..2)
-            .map(|c| TrackerCamera {
-                camera: full[c].clone(),
-                baseline_m: BASELINE_M,
-            })
-            .collect();
-        let mut tracker =
-            Tracker::new(TrackingConfig::default(), &OrbConfig::default(), rig).unwrap();
+        let (mut tracker, full) = front_rear_tracker();
         let end_s = 32.0;
         for i in 0..=(end_s * RATE_HZ) as i64 {
             let t = i as f64 / RATE_HZ;
-            let frames: Vec<StereoFrame> = (0..2)
-                .map(|c| observe(&full[c], &truth(t), &landmarks, &mut rng))
-                .collect();
-            let inputs: Vec<CameraInput> = frames
-                .iter()
-                .enumerate()
-                .map(|(camera, features)| CameraInput {
-                    camera,
-                    stamp: Nanos::from_secs_f64(t),
-                    features,
-                    rotation_from_frame: None,
-                })
-                .collect();
-            tracker.track(Nanos::from_secs_f64(t), &inputs);
+            track_front_rear(&mut tracker, &full, &landmarks, &mut rng, &truth(t), t);
         }
         // A vocabulary of this world's appearance: the keyframes' descriptors.
         let images: Vec<Vec<crate::slam::Descriptor>> = tracker
@@ -597,22 +557,7 @@ mod tests {
         // Drift growing along the keyframes up to 8 cm and 1.5 deg of yaw at the end; each
         // landmark drifts with the keyframe that created it.
         let clean = rmse(&tracker);
-        let map = tracker.map_mut();
-        let n_kf = map.keyframes.len();
-        let drift = |k: usize| {
-            let f = k as f64 / (n_kf - 1) as f64;
-            Isometry3::from_parts(
-                Translation3::new(0.03 * f, 0.07 * f, 0.01 * f),
-                UnitQuaternion::from_euler_angles(0.0, 0.0, 0.026 * f),
-            )
-        };
-        for (k, kf) in map.keyframes.iter_mut().enumerate() {
-            kf.world_from_body = drift(k) * kf.world_from_body;
-        }
-        for lm in map.landmarks.iter_mut() {
-            lm.position = (drift(lm.created_by as usize) * Point3::from(lm.position)).coords;
-        }
-        tracker.refresh_last_pose();
+        inject_drift(&mut tracker);
         let drifted = rmse(&tracker);
         let end_error = |tracker: &Tracker| {
             let p = tracker.trajectory().last().unwrap().1;
