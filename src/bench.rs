@@ -581,6 +581,115 @@ pub fn render_figures(quick: bool) -> Result<Vec<Figure>, BenchError> {
     Ok(out)
 }
 
+/// The box-occluder SLAM scenario (two stereo pairs, a tag camera), embedded.
+pub const CSL_BOX_OCCLUDER_TOML: &str = include_str!("../scenarios/csl-box-occluder.toml");
+
+/// The stream a SLAM benchmark feeds: the first `seconds` of `scenarios/csl-box-occluder.toml`
+/// simulated once (without its SLAM), every delivered message kept in delivery order,
+/// with the robot's static transforms and the scenario's SLAM configuration.
+pub fn slam_bench_stream(
+    seconds: f64,
+) -> Result<
+    (
+        Vec<vinebench_msgs::Message>,
+        vinebench_msgs::StaticTransforms,
+        crate::slam::SlamConfig,
+    ),
+    BenchError,
+> {
+    use crate::runner::{setup, simulate_setup};
+    let mut sc =
+        LoadedScenario::from_str(CSL_BOX_OCCLUDER_TOML, "scenarios/csl-box-occluder.toml")?;
+    sc.scenario.max_duration_s = seconds;
+    sc.scenario.render.debug_png_every = 0;
+    let mut built = setup(&sc)?;
+    // The SLAMs run on the kept stream, not during the simulation.
+    built.slam.clear();
+    let (tx, rx) = std::sync::mpsc::channel();
+    built.tap = Some(tx);
+    let static_transforms = built.robot.static_transforms.clone();
+    simulate_setup(&sc, built, None)?;
+    Ok((
+        rx.try_iter().collect(),
+        static_transforms,
+        sc.scenario.slam.clone(),
+    ))
+}
+
+/// Rig frames per second of the SLAM `cfg` over `messages` (every message pushed in
+/// order: feature extraction, stereo, tracking, keyframes, local BA, tags and loops
+/// included; the final `finish` not), best of `repeats`, and the frames tracked.
+pub fn slam_frames_per_second(
+    cfg: &crate::slam::SlamConfig,
+    messages: &[vinebench_msgs::Message],
+    static_transforms: &vinebench_msgs::StaticTransforms,
+    repeats: usize,
+) -> Result<(f64, usize), BenchError> {
+    let mut best = f64::INFINITY;
+    let mut frames = 0;
+    for _ in 0..repeats.max(1) {
+        let mut slam = crate::slam::VisualSlam::new(
+            crate::slam::SLAM_SOURCE,
+            cfg.clone(),
+            static_transforms.clone(),
+            None,
+        )
+        .map_err(|e| BenchError::Setup(e.to_string()))?;
+        let t0 = Instant::now();
+        for m in messages {
+            slam.push(m)
+                .map_err(|e| BenchError::Setup(format!("slam on the benchmark stream: {e}")))?;
+        }
+        best = best.min(t0.elapsed().as_secs_f64());
+        frames = slam.finish().frames.len();
+    }
+    Ok((frames as f64 / best, frames))
+}
+
+/// The whole SLAM's speed on rendered frames of the box-occluder scenario (see
+/// [`slam_bench_stream`]): the two-pair rig with tags on all threads and on one, and the
+/// single-camera baseline. The renderer does not share the cores: the stream is rendered
+/// first.
+pub fn slam_tracking_figures(quick: bool) -> Result<Vec<Figure>, BenchError> {
+    let (seconds, repeats) = if quick { (6.0, 1) } else { (15.0, 3) };
+    let (messages, tf, cfg) = slam_bench_stream(seconds)?;
+    let rig = cfg.clone();
+    let single = crate::slam::SlamBaseline::SingleCamera.config(&cfg);
+    let (rig_fps, frames) = slam_frames_per_second(&rig, &messages, &tf, repeats)?;
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .map_err(|e| BenchError::Setup(e.to_string()))?;
+    let (rig_fps_1, _) = one.install(|| slam_frames_per_second(&rig, &messages, &tf, repeats))?;
+    let (single_fps, _) = slam_frames_per_second(&single, &messages, &tf, repeats)?;
+    Ok(vec![
+        Figure {
+            name: "slam: front+rear 752x480 stereo pairs + side tag camera, whole SLAM on the box-occluder stream, rig frames/s, all threads",
+            value: rig_fps,
+            unit: "frames/s",
+            target: Some(30.0),
+        },
+        Figure {
+            name: "slam: the same, one thread",
+            value: rig_fps_1,
+            unit: "frames/s",
+            target: None,
+        },
+        Figure {
+            name: "slam: single-camera baseline (front pair only, no tags), frames/s, all threads",
+            value: single_fps,
+            unit: "frames/s",
+            target: None,
+        },
+        Figure {
+            name: "slam: rig frames in the stream",
+            value: frames as f64,
+            unit: "frames",
+            target: None,
+        },
+    ])
+}
+
 /// Runs every figure.
 pub fn run_all(quick: bool) -> Result<Vec<Figure>, BenchError> {
     let (steps, repeats) = if quick { (200_000, 2) } else { (2_000_000, 5) };

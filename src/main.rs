@@ -163,9 +163,10 @@ enum Command {
         quick: bool,
         /// Which figures: `all`, `core` (estimator, physics, no-camera scenario),
         /// `render` (ray casting, shading, camera scenarios), `recording` (MCAP write and
-        /// read speed, a run's slowdown by its recording) or `mapper` (voxel downsampling,
-        /// Ball-Pivoting, memory of mapping a row loop).
-        #[arg(long, default_value = "all", value_parser = ["all", "core", "render", "recording", "mapper"])]
+        /// read speed, a run's slowdown by its recording), `mapper` (voxel downsampling,
+        /// Ball-Pivoting, memory of mapping a row loop) or `slam` (the whole visual SLAM
+        /// on a rendered stream of the box-occluder scenario, rig frames per second).
+        #[arg(long, default_value = "all", value_parser = ["all", "core", "render", "recording", "mapper", "slam"])]
         only: String,
     },
 }
@@ -319,6 +320,9 @@ fn dispatch(cmd: Command) -> Result<u8> {
             }
             if only == "all" || only == "mapper" {
                 figures.extend(vinebench::bench_mapper::mapper_figures(quick)?);
+            }
+            if only == "all" || only == "slam" {
+                figures.extend(vinebench::bench::slam_tracking_figures(quick)?);
             }
             println!("| figure | value | target |\n|---|---:|---:|");
             for f in figures {

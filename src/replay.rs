@@ -3,14 +3,18 @@
 //! A vinebench recording carries its resolved scenario ([`recording::META_SCENARIO`]):
 //! the estimators are rebuilt from it, the static transforms from `/tf_static`, and the
 //! messages are fed in their recorded arrival order (publish time, ties in file order),
-//! so the estimates equal the live run's bit for bit. A field recording needs a
+//! so the estimates equal the live run's bit for bit. The recorded scenario's visual SLAM
+//! (`[slam]` and its baselines) runs too, on the recorded images, IMU and `camera_info`
+//! (a recording made with `[recording] exclude_topics` over the image topics has none to
+//! give it): same trajectories, `loops.csv` and SLAM metrics as live. A field recording needs a
 //! topic-mapping file ([`ReplayConfig`], `--config`): which topic is the IMU, the GNSS
 //! fix, the tracking camera, ...; the map origin (or the first fix) and estimator
 //! parameters. Topics nobody asked for and message types vinebench does not decode are
 //! skipped and counted, never fatal; a damaged file gives what it still holds.
 //!
 //! Outputs: `estimate_<source>.tum`, `ground_truth.tum` (from `/ground_truth/odom` when
-//! present, which scoring then uses), `report.json`, `report.md`, `trajectories.svg`.
+//! present, which scoring then uses), `loops.csv` (with a SLAM and ground truth),
+//! `report.json`, `report.md`, `trajectories.svg`.
 
 use crate::estimator::EstimatorSet;
 use crate::expect::ExpectationResult;
@@ -174,6 +178,10 @@ pub struct ReplaySource {
     pub rejected: BTreeMap<String, u64>,
     /// Notes.
     pub notes: Vec<String>,
+    /// The SLAM's own metrics (tracking losses, loops and, with ground truth, their
+    /// correctness; see `crate::expect::SLAM_METRICS`); empty for other sources.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub slam: BTreeMap<String, f64>,
 }
 
 /// The report of a replay (`report.json`; `report.md` for people).
@@ -713,7 +721,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         .file_stem()
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_else(|| "recording".into());
-    let sc = match (
+    let mut sc = match (
         &user_cfg,
         meta.and_then(|m| m.get(recording::META_KEY_TOML)),
     ) {
@@ -748,6 +756,16 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             scenario_of_config(c, &cf, &name, origin)?
         }
     };
+
+    if user_cfg.is_none()
+        && let Some(f) = meta.and_then(|m| m.get("file"))
+    {
+        // Files the recorded scenario names (the SLAM's vocabulary) are relative to it.
+        sc.base_dir = Path::new(f)
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_default();
+    }
 
     // Static transforms.
     let body = cfg.body_frame.as_deref().unwrap_or(names::BASE_LINK);
@@ -803,6 +821,40 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     truth.samples.dedup_by_key(|s| s.stamp);
 
     let s = &sc.scenario;
+    // The visual SLAM of a vinebench recording's `[slam]` (it needs the image topics).
+    let slam_topics: Vec<String> = s
+        .slam
+        .cameras
+        .iter()
+        .flat_map(|c| ["left", "right"].map(|side| format!("/{c}/{side}/image_rect_color")))
+        .collect();
+    let unrecorded: Vec<&String> = slam_topics
+        .iter()
+        .filter(|t| !present.contains(&t.as_str()))
+        .collect();
+    let mut missing_topics = missing_topics;
+    if user_cfg.is_none() && s.slam.enabled && !unrecorded.is_empty() {
+        // A run recorded with its images excluded: nothing for the SLAM to see.
+        missing_topics.push(format!(
+            "slam: {} not recorded (excluded by [recording] exclude_topics?), SLAM not replayed",
+            unrecorded
+                .iter()
+                .map(|t| t.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
+    let mut slam = if user_cfg.is_none() && unrecorded.is_empty() {
+        crate::runner::slam_from_scenario(&sc, &static_tf, None).map_err(|e| {
+            ReplayError::Input {
+                file: file_name.clone(),
+                problem: format!("recorded scenario: {e}"),
+            }
+        })?
+    } else {
+        Vec::new()
+    };
+    let mut slam_error: Option<crate::slam::SlamError> = None;
     let mut estimators = EstimatorSet::new(&s.estimators, static_tf, LocalEnu::new(s.origin))
         .map_err(|e| ReplayError::Input {
             file: sc.file.clone(),
@@ -811,7 +863,17 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     // Second scan: sensor messages in arrival (publish-time) order, ties in the recorded
     // (delivery) order, straight into the estimators.
     let mut order = PublishOrder::new();
-    let mut feed = |arrival: Nanos, msg: Message| estimators.push(&TimedMessage { arrival, msg });
+    let mut feed = |arrival: Nanos, msg: Message| {
+        if slam_error.is_none() {
+            for v in &mut slam {
+                if let Err(e) = v.push(&msg) {
+                    slam_error = Some(e);
+                    break;
+                }
+            }
+        }
+        estimators.push(&TimedMessage { arrival, msg });
+    };
     reader::scan_file(file, |ch, m| {
         if let Some(mut msg) = collect(Scan::Sensors, &roles, &mut camera_topics, &mut got, ch, m) {
             rename_message(&cfg.frames, &mut msg);
@@ -819,6 +881,12 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         }
     })?;
     order.finish(&mut feed);
+    if let Some(e) = slam_error {
+        return Err(ReplayError::Input {
+            file: file_name,
+            problem: e.to_string(),
+        });
+    }
     if got.replayed.is_empty() {
         return Err(ReplayError::Input {
             file: file_name,
@@ -832,7 +900,10 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             ),
         });
     }
-    let out = estimators.finish();
+    let mut out = estimators.finish();
+    let slam: Vec<crate::slam::SlamOutput> = slam.into_iter().map(|v| v.finish()).collect();
+    out.estimators
+        .extend(slam.iter().map(crate::slam::estimator_output));
 
     // Outputs.
     let name = safe_name(&s.name);
@@ -866,10 +937,40 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     } else {
         Vec::new()
     };
+    // The SLAM's loops against the recorded truth (`loops.csv`, as a live run writes).
+    let th = s.scoring.loop_thresholds();
+    let loop_scores: Vec<scoring::loops::LoopScore> = slam
+        .iter()
+        .map(|o| scoring::loops::score_loops(&o.loops, &truth, &th))
+        .collect();
+    if !slam.is_empty() && have_truth {
+        let t0 = truth.samples.first().map_or(Nanos(0), |s| s.stamp);
+        let named: Vec<(&str, &scoring::loops::LoopScore)> =
+            slam.iter().map(|o| o.source).zip(&loop_scores).collect();
+        let p = dir.join("loops.csv");
+        std::fs::write(&p, scoring::loops::loops_csv(&named, t0)).map_err(io_err(&p))?;
+    }
+    let slam_metrics = |name: &str| -> BTreeMap<String, f64> {
+        let Some((o, l)) = slam
+            .iter()
+            .zip(&loop_scores)
+            .find(|(o, _)| o.source == name)
+        else {
+            return BTreeMap::new();
+        };
+        crate::expect::SLAM_METRICS
+            .iter()
+            .filter_map(|(m, _)| {
+                let v = o.metric(m).or_else(|| l.metric(m).filter(|_| have_truth))?;
+                Some((m.to_string(), v))
+            })
+            .collect()
+    };
     let sources: Vec<ReplaySource> = out
         .estimators
         .iter()
         .map(|e| ReplaySource {
+            slam: slam_metrics(e.name),
             name: e.name.to_string(),
             poses: e.trajectory.len(),
             score: have_truth
@@ -896,10 +997,11 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
                     if source == crate::expect::ROBOT_SOURCE {
                         return robot.get(metric).copied();
                     }
-                    sources
-                        .iter()
-                        .find(|r| r.name == source)
-                        .and_then(|r| r.score.as_ref()?.metric(metric))
+                    let r = sources.iter().find(|r| r.name == source)?;
+                    r.score
+                        .as_ref()
+                        .and_then(|x| x.metric(metric))
+                        .or_else(|| r.slam.get(metric).copied())
                 })
             })
             .collect()
@@ -987,6 +1089,25 @@ fn write_report(
             m("ate_rmse_aligned_m"),
             m("d_m")
         );
+    }
+    let slam: Vec<&ReplaySource> = report
+        .sources
+        .iter()
+        .filter(|s| !s.slam.is_empty())
+        .collect();
+    if !slam.is_empty() {
+        let _ = writeln!(
+            md,
+            "\n## Visual SLAM\n\n| source | metric | value |\n|---|---|---:|"
+        );
+        for s in slam {
+            for (k, v) in &s.slam {
+                let _ = writeln!(md, "| {} | {k} | {v} |", s.name);
+            }
+        }
+        if report.ground_truth_poses > 0 {
+            let _ = writeln!(md, "\nLoop closures: `loops.csv`.");
+        }
     }
     if !report.expectations.is_empty() {
         let _ = writeln!(md, "\n## Expectations\n");

@@ -579,7 +579,8 @@ fn slam_markdown(
     let mut md = String::from(
         "\n## Visual SLAM (Kokas et al.)\n\n\
          Loops: accepted loop closures (`loops.csv`), false = true poses farther apart than \
-         `scoring.loop_distance_m`; recall over ground-truth revisits.\n\n\
+         `scoring.loop_distance_m` (for a loop through surveyed tags: its claimed relative \
+         pose that far from the true one); recall over ground-truth revisits.\n\n\
          | source | tracking losses | time lost [s] | keyframes | maps started | loops | false loops | precision | recall |\n\
          |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );

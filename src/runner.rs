@@ -376,6 +376,9 @@ pub struct Setup {
     pub comparisons: Vec<(MotionModelKind, Box<dyn MotionModel>)>,
     /// The visual SLAM of `[slam]` and its baselines (empty when it is off).
     pub slam: Vec<crate::slam::VisualSlam>,
+    /// When set, every message is also sent here as it is delivered, in delivery order
+    /// (`vinebench bench` feeds the same stream to the SLAM again); `None` from [`setup`].
+    pub tap: Option<std::sync::mpsc::Sender<vinebench_msgs::Message>>,
 }
 
 /// Builds the world, robot, route, motion model, sensors and estimators of a scenario;
@@ -480,7 +483,7 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         })
         .map_err(estimator_error)?;
     let mapping = crate::mapping::MappingStage::from_scenario(sc, &robot.static_transforms)?;
-    let slam = slam_from_scenario(sc, &robot.static_transforms)?;
+    let slam = slam_from_scenario(sc, &robot.static_transforms, Some(&world))?;
     Ok(Setup {
         world,
         robot,
@@ -495,14 +498,18 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         mapping,
         comparisons,
         slam,
+        tap: None,
     })
 }
 
 /// The visual SLAM of `[slam]` and its baselines (none when off); its cameras must be
-/// stereo cameras of `[[sensors.cameras]]` (located errors).
-fn slam_from_scenario(
+/// stereo cameras of `[[sensors.cameras]]` (located errors). With
+/// `slam.loop_closure.survey_world_tags`, `world` (generated from the scenario when not
+/// given) supplies the surveyed tag poses.
+pub fn slam_from_scenario(
     sc: &LoadedScenario,
     static_transforms: &vinebench_msgs::StaticTransforms,
+    world: Option<&World>,
 ) -> Result<Vec<crate::slam::VisualSlam>, RunError> {
     let s = &sc.scenario;
     if !s.slam.enabled {
@@ -574,7 +581,19 @@ fn slam_from_scenario(
     } else {
         None
     };
-    s.slam
+    let mut slam_cfg = s.slam.clone();
+    if slam_cfg.loop_closure.survey_world_tags {
+        let generated;
+        let world = match world {
+            Some(w) => w,
+            None => {
+                generated = World::generate(s.seed, &s.world).map_err(|e| sc.param_error(e))?;
+                &generated
+            }
+        };
+        survey_tags(&mut slam_cfg.loop_closure, world, s.seed);
+    }
+    slam_cfg
         .runs()
         .into_iter()
         .map(|(source, cfg)| {
@@ -582,6 +601,30 @@ fn slam_from_scenario(
                 .map_err(|e| sc.field_error("slam", e.to_string()).into())
         })
         .collect()
+}
+
+/// A simulated survey of `world`'s tag boards into `cfg.surveyed_tags` (entries the
+/// scenario lists keep their poses): each pose perturbed by `survey_sigma_m` and
+/// `survey_sigma_rad` (per axis) drawn from the stream `tag_survey` of `seed`.
+fn survey_tags(cfg: &mut crate::slam::loop_closing::LoopConfig, world: &World, seed: u64) {
+    use rand_distr::{Distribution, StandardNormal};
+    let mut rng = vinebench_sim::rng::stream(seed, "tag_survey");
+    for board in &world.tags {
+        let mut n = || -> f64 { StandardNormal.sample(&mut rng) };
+        let dt = nalgebra::Vector3::new(n(), n(), n()) * cfg.survey_sigma_m;
+        let dr = nalgebra::Vector3::new(n(), n(), n()) * cfg.survey_sigma_rad;
+        if cfg.surveyed_tags.iter().any(|t| t.id == board.id) {
+            continue;
+        }
+        let surveyed = nalgebra::Isometry3::from_parts(
+            nalgebra::Translation3::from(board.world_from_tag.translation.vector + dt),
+            nalgebra::UnitQuaternion::from_scaled_axis(dr) * board.world_from_tag.rotation,
+        );
+        cfg.surveyed_tags
+            .push(crate::slam::loop_closing::SurveyedTag::from_pose(
+                board.id, &surveyed,
+            ));
+    }
 }
 
 /// The motion model `kind` of a scenario, on its route from its start; `field` names the
@@ -701,6 +744,7 @@ pub fn simulate_setup(
         renderer,
         mut comparisons,
         mut slam,
+        tap,
         ..
     } = built;
     let mut png = png_dir.map(|d| crate::images::PngDump::new(&d, s.render.debug_png_every));
@@ -800,6 +844,10 @@ pub fn simulate_setup(
                 for v in &mut slam {
                     v.push(&p.tm.msg)?;
                 }
+                if let Some(tx) = &tap {
+                    // A receiver gone only means nobody listens any more.
+                    let _ = tx.send(p.tm.msg.clone());
+                }
                 // Written in delivery order: a replay restores it exactly.
                 if let Some(rec) = &mut recorder {
                     rec.send(RecordItem::Message(p.tm));
@@ -822,6 +870,9 @@ pub fn simulate_setup(
         }
         for v in &mut slam {
             v.push(&p.tm.msg)?;
+        }
+        if let Some(tx) = &tap {
+            let _ = tx.send(p.tm.msg.clone());
         }
         if let Some(rec) = &mut recorder {
             rec.send(RecordItem::Message(p.tm));

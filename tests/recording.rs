@@ -788,6 +788,68 @@ fn replay_of_a_run_equals_the_live_run_bit_for_bit() {
     assert!(e.contains("cut.mcap"), "{e}");
 }
 
+/// A SLAM run's recording (images, camera_info, IMU, /tf_static) replays to the same
+/// SLAM trajectories and loop file, bit for bit: the first seconds of the box-occluder
+/// scenario (the tag seen once as the rover sets off).
+#[test]
+fn replay_runs_the_recorded_slam_to_the_same_trajectories() {
+    let tmp = tempfile::tempdir().unwrap();
+    let live = tmp.path().join("live");
+    let mut sc = LoadedScenario::from_str(
+        vinebench::bench::CSL_BOX_OCCLUDER_TOML,
+        "csl-box-occluder.toml",
+    )
+    .unwrap();
+    sc.scenario.max_duration_s = 7.0;
+    let outcome = run(
+        &sc,
+        &RunOptions {
+            out_dir: Some(live.clone()),
+            progress: false,
+            ..RunOptions::default()
+        },
+    )
+    .unwrap();
+    let rep = tmp.path().join("replay");
+    let r = replay(
+        &live.join("recording.mcap"),
+        &ReplayOptions {
+            out_dir: Some(rep.clone()),
+            ..ReplayOptions::default()
+        },
+    )
+    .unwrap();
+    for source in ["slam", "slam_single_camera", "slam_no_loops"] {
+        let name = format!("estimate_{source}.tum");
+        let a = std::fs::read(live.join(&name)).unwrap();
+        let b = std::fs::read(rep.join(&name)).unwrap();
+        assert!(a.len() > 1000, "{name}: {} bytes", a.len());
+        assert!(a == b, "{name} differs between live run and replay");
+        let replayed = r.report.sources.iter().find(|s| s.name == source).unwrap();
+        let live_ate = outcome
+            .report
+            .sources
+            .iter()
+            .find(|s| s.name == source)
+            .unwrap()
+            .score
+            .metric("ate_rmse_aligned_m");
+        assert_eq!(
+            replayed
+                .score
+                .as_ref()
+                .unwrap()
+                .metric("ate_rmse_aligned_m"),
+            live_ate
+        );
+        assert_eq!(replayed.slam.get("tracking_losses"), Some(&0.0), "{source}");
+    }
+    assert_eq!(
+        std::fs::read_to_string(live.join("loops.csv")).unwrap(),
+        std::fs::read_to_string(rep.join("loops.csv")).unwrap()
+    );
+}
+
 #[test]
 fn a_field_recording_replays_through_a_topic_mapping() {
     let tmp = tempfile::tempdir().unwrap();

@@ -1,7 +1,9 @@
 //! Loop-closure scoring against ground truth: each accepted loop is true when the true
 //! poses at its query and matched stamps are within `scoring.loop_distance_m` (and, for
 //! the heading check, their yaws within `scoring.loop_heading_deg`); precision over the
-//! accepted loops, recall over the ground-truth **revisits**.
+//! accepted loops, recall over the ground-truth **revisits**. A loop through surveyed
+//! tags (`tag_survey`) joins poses that may be far apart: it is true when the relative
+//! pose it claims is within those thresholds of the true one.
 //!
 //! A revisit episode is a maximal stretch of ground-truth samples (every 0.2 s) each of
 //! which is within `loop_distance_m` and `loop_heading_deg` of an earlier pose at least
@@ -13,7 +15,7 @@ use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 use vinebench_msgs::{Nanos, Trajectory};
 
-use crate::slam::loop_closing::LoopClosure;
+use crate::slam::loop_closing::{LoopClosure, LoopSource};
 
 /// Ground-truth sampling step of the revisit search.
 const REVISIT_STEP: Nanos = Nanos(200_000_000);
@@ -46,6 +48,11 @@ pub struct ScoredLoop {
     pub truth_distance_m: f64,
     /// True yaw difference, deg.
     pub truth_heading_deg: f64,
+    /// How far the relative pose the loop claims is from the true one, m (NaN without a
+    /// claim or outside the truth).
+    pub claim_error_m: f64,
+    /// The same, yaw, deg.
+    pub claim_error_deg: f64,
     /// Within the distance threshold.
     pub correct: bool,
     /// Within the distance and the heading threshold.
@@ -145,17 +152,32 @@ pub fn score_loops(loops: &[LoopClosure], truth: &Trajectory, th: &LoopThreshold
     let scored: Vec<ScoredLoop> = loops
         .iter()
         .map(|l| {
-            let (d, h) = match (
+            let poses = (
                 truth.interpolate(l.query_stamp),
                 truth.interpolate(l.matched_stamp),
-            ) {
+            );
+            let (d, h) = match poses {
                 (Some(a), Some(b)) => (
                     (a.translation.vector - b.translation.vector).norm(),
                     angle_diff_deg(yaw(&a), yaw(&b)),
                 ),
                 _ => (f64::NAN, f64::NAN),
             };
-            let correct = d <= th.distance_m;
+            let (ce, ch) = match (poses, l.matched_from_query) {
+                ((Some(q), Some(m)), Some(claim)) => {
+                    let error = claim.inverse() * (m.inverse() * q);
+                    (
+                        error.translation.vector.norm(),
+                        angle_diff_deg(yaw(&error), 0.0),
+                    )
+                }
+                _ => (f64::NAN, f64::NAN),
+            };
+            let (correct, heading_ok) = if l.source == LoopSource::TagSurvey {
+                (ce <= th.distance_m, ch <= th.heading_deg)
+            } else {
+                (d <= th.distance_m, h <= th.heading_deg)
+            };
             ScoredLoop {
                 query_stamp: l.query_stamp,
                 matched_stamp: l.matched_stamp,
@@ -163,8 +185,10 @@ pub fn score_loops(loops: &[LoopClosure], truth: &Trajectory, th: &LoopThreshold
                 tag_id: l.tag_id,
                 truth_distance_m: d,
                 truth_heading_deg: h,
+                claim_error_m: ce,
+                claim_error_deg: ch,
                 correct,
-                correct_with_heading: correct && h <= th.heading_deg,
+                correct_with_heading: correct && heading_ok,
                 correction_m: l.correction_m,
                 correction_deg: l.correction_deg,
             }
@@ -191,12 +215,13 @@ pub fn score_loops(loops: &[LoopClosure], truth: &Trajectory, th: &LoopThreshold
 pub fn loops_csv(sources: &[(&str, &LoopScore)], t0: Nanos) -> String {
     let mut out = String::from(
         "source,query_stamp_ns,matched_stamp_ns,query_t_s,matched_t_s,method,tag_id,\
-         truth_distance_m,truth_heading_deg,correct,correct_with_heading,correction_m,correction_deg\n",
+         truth_distance_m,truth_heading_deg,claim_error_m,claim_error_deg,correct,\
+         correct_with_heading,correction_m,correction_deg\n",
     );
     for (source, score) in sources {
         for l in &score.loops {
             out.push_str(&format!(
-                "{source},{},{},{:.3},{:.3},{},{},{:.4},{:.2},{},{},{:.4},{:.3}\n",
+                "{source},{},{},{:.3},{:.3},{},{},{:.4},{:.2},{:.4},{:.2},{},{},{:.4},{:.3}\n",
                 l.query_stamp.0,
                 l.matched_stamp.0,
                 (l.query_stamp - t0).as_secs_f64(),
@@ -205,6 +230,8 @@ pub fn loops_csv(sources: &[(&str, &LoopScore)], t0: Nanos) -> String {
                 l.tag_id.map(|i| i.to_string()).unwrap_or_default(),
                 l.truth_distance_m,
                 l.truth_heading_deg,
+                l.claim_error_m,
+                l.claim_error_deg,
                 l.correct,
                 l.correct_with_heading,
                 l.correction_m,
@@ -262,6 +289,7 @@ mod tests {
             tag_id: Some(0),
             query_keyframe: 0,
             matched_keyframe: 0,
+            matched_from_query: None,
             correction_m: 0.0,
             correction_deg: 0.0,
             pose_graph_cost: (0.0, 0.0),
@@ -306,6 +334,39 @@ mod tests {
         // Heading: the true loop faces east both times.
         assert!(s.loops[0].correct_with_heading);
         assert!(s.loops[0].truth_heading_deg < 1e-6);
+    }
+
+    #[test]
+    fn a_survey_loop_is_judged_by_the_relative_pose_it_claims() {
+        let truth = square_loop();
+        // 12 s at (10, 2) facing north onto 1 s at (1, 0) facing east: 9.2 m apart, so a
+        // revisit loop there is false, but a survey loop claiming the true relative pose
+        // is right; one claiming it 1.5 m off is not; one turned 45 deg fails the heading.
+        let at = |t: f64| truth.interpolate(Nanos::from_secs_f64(t)).unwrap();
+        let true_rel = at(1.0).inverse() * at(12.0);
+        let survey = |claim: Isometry3<f64>| LoopClosure {
+            source: LoopSource::TagSurvey,
+            matched_from_query: Some(claim),
+            ..closure(12.0, 1.0)
+        };
+        let off = Isometry3::translation(0.0, 1.5, 0.0) * true_rel;
+        let turned = true_rel * UnitQuaternion::from_euler_angles(0.0, 0.0, 0.785);
+        let loops = [
+            closure(12.0, 1.0),
+            survey(true_rel),
+            survey(off),
+            survey(turned),
+        ];
+        let s = score_loops(&loops, &truth, &TH);
+        let correct: Vec<bool> = s.loops.iter().map(|l| l.correct).collect();
+        assert_eq!(correct, [false, true, false, true]);
+        assert!(s.loops[1].claim_error_m < 1e-9);
+        assert!((s.loops[2].claim_error_m - 1.5).abs() < 1e-9);
+        assert!(s.loops[1].correct_with_heading);
+        assert!(!s.loops[3].correct_with_heading);
+        assert!((s.loops[3].claim_error_deg - 45.0).abs() < 0.1);
+        assert_eq!(s.loops[1].method, "tag_survey");
+        assert!(s.loops[0].claim_error_m.is_nan());
     }
 
     #[test]

@@ -66,6 +66,20 @@ pub struct LoopConfig {
     pub tag_sigma_m: f64,
     /// The same, rotation, rad.
     pub tag_sigma_rad: f64,
+    /// Tags whose world pose is known (surveyed). The first sighting of any of them is the
+    /// survey anchor; a later sighting of another one, after `min_path_m` of travel since
+    /// the anchor (or the last such loop), is tied to the anchor through the two surveyed
+    /// poses: a loop edge wherever the two tags stand, no return to a place needed (the
+    /// paper's re-localization at a tag of known pose).
+    pub surveyed_tags: Vec<SurveyedTag>,
+    /// Fill `surveyed_tags` from the simulated world's tag boards, each pose perturbed by
+    /// `survey_sigma_*` noise drawn from the scenario's seed (a simulated survey; the
+    /// runner does it, the SLAM only sees the list).
+    pub survey_world_tags: bool,
+    /// Standard deviation of a surveyed tag position, m.
+    pub survey_sigma_m: f64,
+    /// The same, of its orientation, rad.
+    pub survey_sigma_rad: f64,
     /// Run global BA after the pose graph.
     pub global_ba: bool,
     /// Iterations of its robust round.
@@ -84,6 +98,10 @@ impl Default for LoopConfig {
             tag_corner_sigma_px: 0.3,
             tag_sigma_m: 0.002,
             tag_sigma_rad: 0.002,
+            surveyed_tags: Vec::new(),
+            survey_world_tags: false,
+            survey_sigma_m: 0.01,
+            survey_sigma_rad: 0.005,
             global_ba: true,
             global_ba_iterations: 30,
         }
@@ -112,16 +130,70 @@ impl LoopConfig {
             (self.tag_sigma_m, "tag_sigma_m"),
             (self.tag_corner_sigma_px, "tag_corner_sigma_px"),
             (self.tag_sigma_rad, "tag_sigma_rad"),
+            (self.survey_sigma_m, "survey_sigma_m"),
+            (self.survey_sigma_rad, "survey_sigma_rad"),
         ] {
             check(
                 positive(v),
                 &format!("slam.loop_closure.{name} must be positive"),
             )?;
         }
+        for (i, t) in self.surveyed_tags.iter().enumerate() {
+            check(
+                t.position_m.iter().chain(&t.rpy_deg).all(|v| v.is_finite()),
+                &format!(
+                    "slam.loop_closure.surveyed_tags[{i}]: position_m and rpy_deg must be \
+                     finite numbers"
+                ),
+            )?;
+            check(
+                !self.surveyed_tags[..i].iter().any(|o| o.id == t.id),
+                &format!(
+                    "slam.loop_closure.surveyed_tags[{i}]: tag {} is surveyed twice",
+                    t.id
+                ),
+            )?;
+        }
         check(
             (1..=500).contains(&self.global_ba_iterations),
             "slam.loop_closure.global_ba_iterations must be in [1, 500]",
         )
+    }
+}
+
+/// A tag of known world pose (`[[slam.loop_closure.surveyed_tags]]`).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SurveyedTag {
+    /// Tag id (tag36h11).
+    pub id: u32,
+    /// The tag centre in `world` (local East-North-Up), m.
+    pub position_m: [f64; 3],
+    /// The tag frame's orientation in `world` (AprilTag convention: x right and y down
+    /// as printed, z into the board) as roll, pitch, yaw about world x, y, z, deg.
+    pub rpy_deg: [f64; 3],
+}
+
+impl SurveyedTag {
+    /// `world_from_tag`.
+    pub fn world_from_tag(&self) -> Isometry3<f64> {
+        let [x, y, z] = self.position_m;
+        let [r, p, w] = self.rpy_deg.map(f64::to_radians);
+        Isometry3::from_parts(
+            nalgebra::Translation3::new(x, y, z),
+            UnitQuaternion::from_euler_angles(r, p, w),
+        )
+    }
+
+    /// The entry of tag `id` at `world_from_tag`.
+    pub fn from_pose(id: u32, world_from_tag: &Isometry3<f64>) -> SurveyedTag {
+        let (r, p, w) = world_from_tag.rotation.euler_angles();
+        let t = world_from_tag.translation.vector;
+        SurveyedTag {
+            id,
+            position_m: [t.x, t.y, t.z],
+            rpy_deg: [r, p, w].map(f64::to_degrees),
+        }
     }
 }
 
@@ -144,6 +216,8 @@ pub enum LoopMethod {
 pub enum LoopSource {
     /// A registered AprilTag seen again.
     Tag,
+    /// A surveyed AprilTag tied to the survey anchor through their known poses.
+    TagSurvey,
     /// Bag-of-words place recognition.
     Bow,
 }
@@ -153,6 +227,7 @@ impl LoopSource {
     pub fn name(self) -> &'static str {
         match self {
             LoopSource::Tag => "tag",
+            LoopSource::TagSurvey => "tag_survey",
             LoopSource::Bow => "bow",
         }
     }
@@ -173,6 +248,10 @@ pub struct LoopClosure {
     pub query_keyframe: u32,
     /// The keyframe of the matched place.
     pub matched_keyframe: u32,
+    /// The loop's claim: the body at `query_stamp` relative to the body at
+    /// `matched_stamp` (`body(matched)_from_body(query)`), when the loop gives one
+    /// between those stamps (tag loops).
+    pub matched_from_query: Option<Isometry3<f64>>,
     /// How far the loop moved the current keyframe, m.
     pub correction_m: f64,
     /// How far it turned it, deg.
@@ -223,12 +302,22 @@ pub struct LoopStats {
     /// Sightings that would have closed a loop but gave a pose farther than
     /// `max_tag_loop_distance_m` from every registering sighting.
     pub sightings_too_far: usize,
+    /// Loops through the survey (`surveyed_tags`).
+    pub survey_loops: usize,
 }
 
 /// Registers tags and closes loops at them (see the module docs).
 #[derive(Clone, Debug)]
 pub struct TagLoopCloser {
     cfg: LoopConfig,
+    /// `world_from_tag` of the surveyed tags.
+    surveyed: BTreeMap<u32, Isometry3<f64>>,
+    /// The first surveyed tag seen (its id), and the path length at its first sighting
+    /// or at the last survey loop, m.
+    anchor: Option<(u32, f64)>,
+    /// The nearest sighting so far of the surveyed tag being passed, waiting for the
+    /// robot to pass its closest approach: `(sighting, tag distance m, path m)`.
+    survey_candidate: Option<(TagSighting, StoredSighting, f64, f64)>,
     tags: BTreeMap<u32, TagRecord>,
     loops: Vec<LoopClosure>,
     stats: LoopStats,
@@ -239,6 +328,13 @@ impl TagLoopCloser {
     pub fn new(cfg: LoopConfig) -> Result<TagLoopCloser, ConfigError> {
         cfg.validate()?;
         Ok(TagLoopCloser {
+            surveyed: cfg
+                .surveyed_tags
+                .iter()
+                .map(|t| (t.id, t.world_from_tag()))
+                .collect(),
+            anchor: None,
+            survey_candidate: None,
             cfg,
             tags: BTreeMap::new(),
             loops: Vec::new(),
@@ -286,6 +382,28 @@ impl TagLoopCloser {
             covariance,
             stamp,
         };
+        if self.surveyed.contains_key(&sighting.id) {
+            match self.anchor {
+                None => self.anchor = Some((sighting.id, path_m)),
+                Some((id, at_m)) if id != sighting.id && path_m - at_m >= self.cfg.min_path_m => {
+                    // The sighting nearest the tag: the loop waits until the robot has
+                    // passed its closest approach (the first sightings are oblique and
+                    // far, at the edge of the view).
+                    let distance = sighting.camera_from_tag.translation.vector.norm();
+                    match &self.survey_candidate {
+                        Some((c, _, d, _)) if c.id == sighting.id && distance >= *d => {
+                            let (c, stored, _, path_m) = self.survey_candidate.take()?;
+                            return self.survey_loop(tracker, &c, stored, path_m);
+                        }
+                        _ => {
+                            self.survey_candidate =
+                                Some((sighting.clone(), stored.clone(), distance, path_m));
+                        }
+                    }
+                }
+                _ => {}
+            }
+        }
         let Some(record) = self.tags.get_mut(&sighting.id) else {
             self.tags.insert(
                 sighting.id,
@@ -340,6 +458,7 @@ impl TagLoopCloser {
         }
         .unwrap_or_else(|| info(self.cfg.tag_sigma_m, self.cfg.tag_sigma_rad));
         let matched_stamp = record.stamp;
+        let matched_from_query = body_a_from_body_b(record);
         let applied = apply_loop(tracker, &self.cfg, a, b, a_from_b, tag_information)?;
         if let Some(r) = self.tags.get_mut(&sighting.id) {
             r.path_m = path_m;
@@ -351,6 +470,84 @@ impl TagLoopCloser {
             tag_id: Some(sighting.id),
             query_keyframe: b,
             matched_keyframe: a,
+            matched_from_query: Some(matched_from_query),
+            correction_m: applied.correction_m,
+            correction_deg: applied.correction_deg,
+            pose_graph_cost: applied.pose_graph_cost,
+            global_ba: applied.global_ba,
+            wall_s: started.elapsed().as_secs_f64(),
+        });
+        self.loops.last()
+    }
+
+    /// The loop from the survey anchor to `current`, a sighting of a surveyed tag (see
+    /// [`LoopConfig::surveyed_tags`]); the anchor's end is its tag's first-visit sighting
+    /// nearest the tag.
+    fn survey_loop(
+        &mut self,
+        tracker: &mut Tracker,
+        sighting: &TagSighting,
+        current: StoredSighting,
+        path_m: f64,
+    ) -> Option<&LoopClosure> {
+        let (anchor_id, _) = self.anchor?;
+        let world_from_anchor_tag = *self.surveyed.get(&anchor_id)?;
+        let world_from_tag = *self.surveyed.get(&sighting.id)?;
+        let anchor = self
+            .tags
+            .get(&anchor_id)?
+            .sightings
+            .iter()
+            .min_by(|a, b| {
+                let d = |s: &StoredSighting| s.camera_from_tag.translation.vector.norm();
+                d(a).total_cmp(&d(b))
+            })?
+            .clone();
+        let started = std::time::Instant::now();
+        let anchor_tag_from_tag = world_from_anchor_tag.inverse() * world_from_tag;
+        // Where the two surveyed tags say keyframe b is, relative to keyframe a.
+        let edge = |n1: &Vector6<f64>, n2: &Vector6<f64>| {
+            (anchor.keyframe_from_camera * perturbed(&anchor.camera_from_tag, n1))
+                * anchor_tag_from_tag
+                * (current.keyframe_from_camera * perturbed(&current.camera_from_tag, n2)).inverse()
+        };
+        let a_from_b = edge(&Vector6::zeros(), &Vector6::zeros());
+        let (a, b) = (anchor.keyframe, current.keyframe);
+        // Both surveyed poses' uncertainty on top of the sightings'.
+        let floor = (info(self.cfg.tag_sigma_m, self.cfg.tag_sigma_rad)
+            .try_inverse()
+            .unwrap_or_else(Matrix6::zeros))
+            + 2.0
+                * info(self.cfg.survey_sigma_m, self.cfg.survey_sigma_rad)
+                    .try_inverse()
+                    .unwrap_or_else(Matrix6::zeros);
+        let information = match (anchor.covariance, current.covariance) {
+            (Some(c1), Some(c2)) => edge_information(&edge, &a_from_b, &c1, &c2, &floor),
+            _ => None,
+        }
+        .or_else(|| floor.try_inverse())?;
+        let query_stamp = current.stamp;
+        let matched_from_query =
+            anchor.keyframe_from_body.inverse() * a_from_b * current.keyframe_from_body;
+        let applied = apply_loop(tracker, &self.cfg, a, b, a_from_b, information)?;
+        if let Some(x) = self.anchor.as_mut() {
+            x.1 = path_m;
+        }
+        // The tag is registered too (for its own revisits), from this sighting.
+        self.tags.entry(sighting.id).or_insert(TagRecord {
+            sightings: vec![current],
+            registered_path_m: path_m,
+            path_m,
+        });
+        self.stats.survey_loops += 1;
+        self.loops.push(LoopClosure {
+            query_stamp,
+            matched_stamp: anchor.stamp,
+            source: LoopSource::TagSurvey,
+            tag_id: Some(sighting.id),
+            query_keyframe: b,
+            matched_keyframe: a,
+            matched_from_query: Some(matched_from_query),
             correction_m: applied.correction_m,
             correction_deg: applied.correction_deg,
             pose_graph_cost: applied.pose_graph_cost,
@@ -710,6 +907,96 @@ pub(super) mod tests {
         // A second sighting right after is no new loop (not min_path_m travelled).
         assert!(see(&mut closer, &mut tracker, t_again).is_none());
         assert_eq!(closer.loops().len(), 1);
+    }
+
+    #[test]
+    fn surveyed_tags_far_apart_take_out_an_injected_drift_without_a_revisit() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let landmarks = world(&mut rng);
+        let (mut tracker, full) = front_rear_tracker();
+        // Tag 3 at x = 0.5 m, tag 4 at x = 3.2 m, both surveyed (true world poses); tag 5
+        // is not. The robot drives out once: no place is visited twice.
+        let world_from_tag4 = Translation3::new(2.7, 0.0, 0.0) * world_from_tag();
+        // An exact survey, weighted as one.
+        let cfg = LoopConfig {
+            min_path_m: 2.0,
+            survey_sigma_m: 0.001,
+            survey_sigma_rad: 0.0005,
+            surveyed_tags: vec![
+                SurveyedTag::from_pose(3, &world_from_tag()),
+                SurveyedTag::from_pose(4, &world_from_tag4),
+            ],
+            ..LoopConfig::default()
+        };
+        // The survey entry gives the pose back.
+        let back = cfg.surveyed_tags[1].world_from_tag();
+        assert!((back.translation.vector - world_from_tag4.translation.vector).norm() < 1e-12);
+        assert!(back.rotation.angle_to(&world_from_tag4.rotation) < 1e-12);
+        let mut closer = TagLoopCloser::new(cfg).unwrap();
+        let sighting_of = |id: u32, world_from_tag: &Isometry3<f64>, t: f64| TagSighting {
+            id,
+            camera_from_tag: (truth(t) * body_from_side_camera()).inverse() * world_from_tag,
+            ..sighting(t)
+        };
+        let (t_anchor, t_other, t_far) = (1.0, 3.0, 6.4);
+        let n = (6.9 * RATE_HZ) as i64;
+        for i in 0..n {
+            let t = i as f64 / RATE_HZ;
+            track_front_rear(&mut tracker, &full, &landmarks, &mut rng, &truth(t), t);
+            if (t - (t_anchor + 0.1)).abs() < 0.5 / RATE_HZ {
+                let s = sighting_of(3, &world_from_tag(), t_anchor);
+                let stamp = Nanos::from_secs_f64(t_anchor);
+                let r = closer.on_sighting(&mut tracker, stamp, &s, &body_from_side_camera(), None);
+                assert!(r.is_none(), "the first surveyed sighting is the anchor");
+            }
+            if (t - (t_other + 0.1)).abs() < 0.5 / RATE_HZ {
+                // An unsurveyed tag only registers.
+                let other = Translation3::new(1.0, 0.0, 0.0) * world_from_tag();
+                let s = sighting_of(5, &other, t_other);
+                let stamp = Nanos::from_secs_f64(t_other);
+                let r = closer.on_sighting(&mut tracker, stamp, &s, &body_from_side_camera(), None);
+                assert!(r.is_none());
+            }
+        }
+        assert_eq!(closer.stats().tags_registered, 2);
+        inject_drift(&mut tracker);
+        // The far pose relative to the anchor's, against the truth (the anchor's own drift
+        // is what a relative constraint cannot see).
+        let end_error = |tracker: &Tracker| {
+            let at = |t: f64| {
+                let (k, kf_from_body) = tracker
+                    .pose_at(Nanos::from_secs_f64(t), Nanos::from_secs_f64(0.2))
+                    .unwrap();
+                tracker.map().keyframes[k as usize].world_from_body * kf_from_body
+            };
+            let est = at(t_anchor).inverse() * at(t_far);
+            let true_rel = truth(t_anchor).inverse() * truth(t_far);
+            (est.translation.vector - true_rel.translation.vector).norm()
+        };
+        let before = end_error(&tracker);
+        // Tag 4 abeam (closest), then 0.15 m past it: the loop uses the closest sighting.
+        let mut see4 = |t: f64| {
+            let s = sighting_of(4, &world_from_tag4, t);
+            let stamp = Nanos::from_secs_f64(t);
+            closer
+                .on_sighting(&mut tracker, stamp, &s, &body_from_side_camera(), None)
+                .cloned()
+        };
+        assert!(see4(t_far).is_none(), "waits for the closest approach");
+        let closure = see4(t_far + 0.3).expect("a loop through the survey");
+        let after = end_error(&tracker);
+        println!("relative error anchor -> far pose: {before:.4} -> {after:.4} m");
+        assert_eq!(closure.source, LoopSource::TagSurvey);
+        assert_eq!(closure.tag_id, Some(4));
+        assert_eq!(closure.matched_stamp, Nanos::from_secs_f64(t_anchor));
+        assert_eq!(closer.stats().survey_loops, 1);
+        // The claim is the true relative pose of the two bodies, 2.7 m apart.
+        let true_rel = truth(t_anchor).inverse() * truth(t_far);
+        let claim = closure.matched_from_query.unwrap();
+        assert!(true_rel.translation.vector.norm() > 2.6);
+        assert!((claim.translation.vector - true_rel.translation.vector).norm() < 1e-9);
+        assert!(before > 0.06, "{before}");
+        assert!(after < 0.01, "end error {before} -> {after} m");
     }
 
     #[test]

@@ -220,6 +220,23 @@ pub fn brief_pattern() -> &'static [[i8; 4]; 256] {
     })
 }
 
+/// The points of [`brief_pattern`] as coordinate arrays `(x, y)`: point `2k` is pair
+/// `k`'s first, `2k + 1` its second.
+fn brief_points() -> &'static ([i32; 512], [i32; 512]) {
+    static POINTS: OnceLock<([i32; 512], [i32; 512])> = OnceLock::new();
+    POINTS.get_or_init(|| {
+        let pattern = brief_pattern();
+        let (mut xs, mut ys) = ([0i32; 512], [0i32; 512]);
+        for (k, p) in pattern.iter().enumerate() {
+            xs[2 * k] = i32::from(p[0]);
+            ys[2 * k] = i32::from(p[1]);
+            xs[2 * k + 1] = i32::from(p[2]);
+            ys[2 * k + 1] = i32::from(p[3]);
+        }
+        (xs, ys)
+    })
+}
+
 /// Half-widths of the circular orientation patch per row offset `v = 0..=15` (ORB's
 /// `umax`, made symmetric under swapping x and y so that a 90° rotation of the image
 /// rotates the centroid exactly).
@@ -280,19 +297,25 @@ pub fn describe(blurred: &GrayImage, x: usize, y: usize, angle_rad: f32) -> Desc
     let w = blurred.width() as isize;
     let data = blurred.data();
     let centre = y as isize * w + x as isize;
-    let pattern = brief_pattern();
-    let mut offsets = [0isize; 512];
+    let (xs, ys) = brief_points();
+    // Offsets from the centre in i32 over separate coordinate arrays, so the rotation
+    // runs in vector lanes.
+    let w32 = w as i32;
+    let mut offsets = [0i32; 512];
     for (i, o) in offsets.iter_mut().enumerate() {
-        let p = pattern[i / 2];
-        let (px, py) = (i32::from(p[2 * (i % 2)]), i32::from(p[2 * (i % 2) + 1]));
-        let rx = (px * c - py * s + 2048) >> 12;
-        let ry = (px * s + py * c + 2048) >> 12;
-        *o = centre + ry as isize * w + rx as isize;
+        let rx = (xs[i] * c - ys[i] * s + 2048) >> 12;
+        let ry = (xs[i] * s + ys[i] * c + 2048) >> 12;
+        *o = ry * w32 + rx;
     }
     let mut d = [0u64; 4];
-    for (i, pair) in offsets.chunks_exact(2).enumerate() {
-        let bit = data[pair[0] as usize] < data[pair[1] as usize];
-        d[i / 64] |= u64::from(bit) << (i % 64);
+    for (word, pairs) in d.iter_mut().zip(offsets.chunks_exact(128)) {
+        let mut bits = 0u64;
+        for (j, pair) in pairs.chunks_exact(2).enumerate() {
+            let a = data[(centre + pair[0] as isize) as usize];
+            let b = data[(centre + pair[1] as isize) as usize];
+            bits |= u64::from(a < b) << j;
+        }
+        *word = bits;
     }
     Descriptor(d)
 }

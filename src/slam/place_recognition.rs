@@ -276,6 +276,8 @@ impl BowLoopCloser {
             tag_id: None,
             query_keyframe: k,
             matched_keyframe: a,
+            // The keyframes' own stamps: the geometric check's pose is the claim.
+            matched_from_query: Some(found.a_from_b),
             correction_m: applied.correction_m,
             correction_deg: applied.correction_deg,
             pose_graph_cost: applied.pose_graph_cost,

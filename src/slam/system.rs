@@ -10,7 +10,8 @@
 //! it takes the latest unused pair of every other camera stamped within
 //! `max_camera_offset_s` and the tracker accounts for the time offsets
 //! ([`super::tracking`]). Messages are processed in the order given, so a run and its
-//! replay produce the same trajectory.
+//! replay produce the same trajectory. With `pipeline`, a rig frame is tracked on another
+//! core while the next image is processed, with the same results.
 
 use super::bow::Vocabulary;
 use super::frontend::{FrontEndConfig, StereoFrame, StereoFrontEnd};
@@ -43,6 +44,11 @@ pub struct SlamConfig {
     /// Pairs of other cameras stamped further than this from the primary's are not
     /// used with it, s.
     pub max_camera_offset_s: f64,
+    /// Track each rig frame while the next image (pair or tag camera) is processed, on
+    /// another core: the same results as one after the other (the frame's inputs are
+    /// fixed when its primary pair is extracted, and everything the tracker does happens
+    /// in the same order), faster on two or more cores.
+    pub pipeline: bool,
     /// Turn the cameras stamped away from the primary's pair by the rotation the IMU's
     /// gyro (`/imu/data`) measured in between ([`GyroBuffer`]); without it (or before
     /// the first samples) a constant-velocity guess is used.
@@ -121,6 +127,7 @@ impl Default for SlamConfig {
             enabled: false,
             cameras: vec!["front".to_string(), "rear".to_string()],
             max_camera_offset_s: 0.1,
+            pipeline: true,
             use_gyro: true,
             features: FrontEndConfig::default(),
             tracking: TrackingConfig::default(),
@@ -239,8 +246,11 @@ struct CameraSlot {
     left_info: Option<CameraInfoMsg>,
     right_info: Option<CameraInfoMsg>,
     gray: (GrayImage, GrayImage),
-    /// The latest extracted pair and whether a rig frame used it.
+    /// The latest extracted pair and whether a rig frame used it (a used pair's
+    /// features have moved to its rig frame).
     latest: Option<(Nanos, StereoFrame, bool)>,
+    /// A tracked pair's features, handed back for the next extraction (no allocation).
+    spare: Option<StereoFrame>,
     pairs: usize,
 }
 
@@ -295,6 +305,55 @@ pub struct VisualSlam {
     gyro: GyroBuffer,
     /// `body_from_imu`'s rotation, once the first IMU message named its frame.
     body_from_imu: Option<UnitQuaternion<f64>>,
+    /// The rig frame waiting to be tracked alongside the next image (with `pipeline`).
+    pending: Option<RigFrame>,
+}
+
+/// A rig frame with its inputs fixed: the pairs it uses (moved out of their slots) and
+/// their gyro rotations.
+#[derive(Debug)]
+struct RigFrame {
+    stamp: Nanos,
+    /// `(camera, pair stamp, features, rotation_from_frame)`.
+    pairs: Vec<(usize, Nanos, StereoFrame, Option<UnitQuaternion<f64>>)>,
+}
+
+/// Tracks `frame` (if any) on `tracker` while `work` runs on the calling thread; both
+/// are done when it returns. The frame's result comes back with the frame (for its
+/// buffers).
+fn track_during<R>(
+    tracker: Option<&mut Tracker>,
+    frame: Option<RigFrame>,
+    work: impl FnOnce() -> R,
+) -> (Option<(RigFrame, FrameResult)>, R) {
+    let (Some(tracker), Some(frame)) = (tracker, frame) else {
+        return (None, work());
+    };
+    let mut tracked = None;
+    let r = rayon::in_place_scope(|scope| {
+        scope.spawn(|_| {
+            let result = track_frame(tracker, &frame);
+            tracked = Some((frame, result));
+        });
+        work()
+    });
+    (tracked, r)
+}
+
+fn track_frame(tracker: &mut Tracker, frame: &RigFrame) -> FrameResult {
+    let inputs: Vec<CameraInput> = frame
+        .pairs
+        .iter()
+        .map(
+            |(camera, stamp, features, rotation_from_frame)| CameraInput {
+                camera: *camera,
+                stamp: *stamp,
+                features,
+                rotation_from_frame: *rotation_from_frame,
+            },
+        )
+        .collect();
+    tracker.track(frame.stamp, &inputs)
 }
 
 /// The tag camera's input and the loop closer.
@@ -356,6 +415,7 @@ impl VisualSlam {
                 right_info: None,
                 gray: (GrayImage::default(), GrayImage::default()),
                 latest: None,
+                spare: None,
                 pairs: 0,
             });
         }
@@ -387,10 +447,13 @@ impl VisualSlam {
             bow,
             gyro: GyroBuffer::default(),
             body_from_imu: None,
+            pending: None,
         })
     }
 
-    /// The tracker, once every camera's calibration has been seen.
+    /// The tracker, once every camera's calibration has been seen. With
+    /// [`SlamConfig::pipeline`] the latest rig frame may still wait to be tracked (until
+    /// the next image or [`VisualSlam::finish`]).
     pub fn tracker(&self) -> Option<&Tracker> {
         self.tracker.as_ref()
     }
@@ -519,15 +582,44 @@ impl VisualSlam {
         s.gray.0.set_from_msg(&l).map_err(image_err(&l))?;
         s.gray.1.set_from_msg(&r).map_err(image_err(&r))?;
         let stereo = stereo_camera(s)?;
-        let mut frame = s.latest.take().map(|x| x.1).unwrap_or_default();
-        s.front_end
-            .process(&stereo, &s.gray.0, &s.gray.1, &mut frame);
+        let mut frame = match s.latest.take() {
+            Some((_, f, false)) => f,
+            _ => s.spare.take().unwrap_or_default(),
+        };
+        let (front_end, gray) = (&mut s.front_end, &s.gray);
+        let (tracked, ()) = track_during(self.tracker.as_mut(), self.pending.take(), || {
+            front_end.process(&stereo, &gray.0, &gray.1, &mut frame)
+        });
+        self.tracked(tracked);
+        let s = &mut self.slots[i];
         s.latest = Some((l.stamp, frame, false));
         s.pairs += 1;
         if i == 0 {
-            self.track_rig_frame(l.stamp);
+            self.form_rig_frame(l.stamp);
         }
         Ok(())
+    }
+
+    /// Records a tracked rig frame's result, hands the tracker's news to the loop closers
+    /// and gives the frame's buffers back to their slots.
+    fn tracked(&mut self, tracked: Option<(RigFrame, FrameResult)>) {
+        let Some((frame, result)) = tracked else {
+            return;
+        };
+        self.frames.push(result);
+        self.close_loops(frame.stamp);
+        if let (Some(bow), Some(tracker)) = (self.bow.as_mut(), self.tracker.as_mut()) {
+            bow.on_keyframes(tracker);
+        }
+        for (camera, _, features, _) in frame.pairs {
+            self.slots[camera].spare.get_or_insert(features);
+        }
+    }
+
+    /// Tracks the rig frame waiting in the pipeline, if any.
+    fn flush(&mut self) {
+        let (tracked, ()) = track_during(self.tracker.as_mut(), self.pending.take(), || ());
+        self.tracked(tracked);
     }
 
     /// Builds the tracker once every camera's two `CameraInfo`s are known; `false` while
@@ -576,13 +668,14 @@ impl VisualSlam {
         Ok(true)
     }
 
-    /// Tracks the rig frame of the primary's pair at `stamp`.
-    fn track_rig_frame(&mut self, stamp: Nanos) {
-        let Some(tracker) = self.tracker.as_mut() else {
+    /// Forms the rig frame of the primary's pair at `stamp` and queues it for tracking
+    /// (tracked at once without `pipeline`).
+    fn form_rig_frame(&mut self, stamp: Nanos) {
+        if self.tracker.is_none() {
             return;
-        };
+        }
         let max_offset = Nanos::from_secs_f64(self.cfg.max_camera_offset_s);
-        let mut inputs = Vec::with_capacity(self.slots.len());
+        let mut pairs = Vec::with_capacity(self.slots.len());
         for (camera, s) in self.slots.iter_mut().enumerate() {
             if let Some((t, frame, used)) = s.latest.as_mut()
                 && !*used
@@ -592,19 +685,14 @@ impl VisualSlam {
                 let rotation_from_frame = (self.cfg.use_gyro && *t != stamp)
                     .then(|| self.gyro.rotation(stamp, *t))
                     .flatten();
-                inputs.push(CameraInput {
-                    camera,
-                    stamp: *t,
-                    features: frame,
-                    rotation_from_frame,
-                });
+                pairs.push((camera, *t, std::mem::take(frame), rotation_from_frame));
             }
         }
-        let result = tracker.track(stamp, &inputs);
-        self.frames.push(result);
-        self.close_loops(stamp);
-        if let (Some(bow), Some(tracker)) = (self.bow.as_mut(), self.tracker.as_mut()) {
-            bow.on_keyframes(tracker);
+        // The previous frame is always tracked by now (every image tracks it alongside).
+        self.flush();
+        self.pending = Some(RigFrame { stamp, pairs });
+        if !self.cfg.pipeline {
+            self.flush();
         }
     }
 
@@ -624,7 +712,15 @@ impl VisualSlam {
                 stamp: img.stamp,
                 source,
             })?;
-        let sightings = t.detector.detect(&t.gray, camera);
+        let (detector, gray) = (&mut t.detector, &t.gray);
+        let (tracked, sightings) = track_during(self.tracker.as_mut(), self.pending.take(), || {
+            detector.detect(gray, camera)
+        });
+        // The tracked frame's loops first: these sightings come after it.
+        self.tracked(tracked);
+        let Some(t) = self.tags.as_mut() else {
+            return Ok(());
+        };
         t.images += 1;
         t.detections += sightings.len();
         if !sightings.is_empty() {
@@ -661,7 +757,8 @@ impl VisualSlam {
     }
 
     /// The run's trajectory, losses and counters.
-    pub fn finish(self) -> SlamOutput {
+    pub fn finish(mut self) -> SlamOutput {
+        self.flush();
         let pairs = self
             .slots
             .iter()
