@@ -718,14 +718,30 @@ fn a_corrupt_chunk_is_skipped_and_reported() {
 const SHORT: &str =
     "name = \"rec-short\"\nmax_duration_s = 25.0\n[motion]\nmodel = \"kinematic\"\n";
 
-fn live_run(dir: &Path) -> vinebench::runner::RunOutcome {
-    let sc = LoadedScenario::from_str(SHORT, "short.toml").unwrap();
+/// Runs `sc` into `dir`.
+fn run_into(sc: &LoadedScenario, dir: &Path) -> vinebench::runner::RunOutcome {
     let opts = RunOptions {
         out_dir: Some(dir.to_path_buf()),
         progress: false,
         ..RunOptions::default()
     };
-    run(&sc, &opts).unwrap()
+    run(sc, &opts).unwrap()
+}
+
+fn live_run(dir: &Path) -> vinebench::runner::RunOutcome {
+    run_into(&LoadedScenario::from_str(SHORT, "short.toml").unwrap(), dir)
+}
+
+/// Replays the recording of the run in `live` into `out`.
+fn replay_run(live: &Path, out: &Path) -> vinebench::replay::ReplayOutcome {
+    replay(
+        &live.join("recording.mcap"),
+        &ReplayOptions {
+            out_dir: Some(out.to_path_buf()),
+            ..ReplayOptions::default()
+        },
+    )
+    .unwrap()
 }
 
 #[test]
@@ -734,14 +750,7 @@ fn replay_of_a_run_equals_the_live_run_bit_for_bit() {
     let live = tmp.path().join("live");
     let outcome = live_run(&live);
     let rep = tmp.path().join("replay");
-    let r = replay(
-        &live.join("recording.mcap"),
-        &ReplayOptions {
-            out_dir: Some(rep.clone()),
-            ..ReplayOptions::default()
-        },
-    )
-    .unwrap();
+    let r = replay_run(&live, &rep);
     assert!(r.report.damage.is_none());
     assert_eq!(r.report.sources.len(), outcome.report.sources.len());
     for s in &outcome.report.sources {
@@ -801,24 +810,9 @@ fn replay_runs_the_recorded_slam_to_the_same_trajectories() {
     )
     .unwrap();
     sc.scenario.max_duration_s = 7.0;
-    let outcome = run(
-        &sc,
-        &RunOptions {
-            out_dir: Some(live.clone()),
-            progress: false,
-            ..RunOptions::default()
-        },
-    )
-    .unwrap();
+    let outcome = run_into(&sc, &live);
     let rep = tmp.path().join("replay");
-    let r = replay(
-        &live.join("recording.mcap"),
-        &ReplayOptions {
-            out_dir: Some(rep.clone()),
-            ..ReplayOptions::default()
-        },
-    )
-    .unwrap();
+    let r = replay_run(&live, &rep);
     for source in ["slam", "slam_single_camera", "slam_no_loops"] {
         let name = format!("estimate_{source}.tum");
         let a = std::fs::read(live.join(&name)).unwrap();

@@ -463,20 +463,14 @@ impl TagLoopCloser {
         if let Some(r) = self.tags.get_mut(&sighting.id) {
             r.path_m = path_m;
         }
-        self.loops.push(LoopClosure {
-            query_stamp: stamp,
-            matched_stamp,
-            source: LoopSource::Tag,
-            tag_id: Some(sighting.id),
-            query_keyframe: b,
-            matched_keyframe: a,
-            matched_from_query: Some(matched_from_query),
-            correction_m: applied.correction_m,
-            correction_deg: applied.correction_deg,
-            pose_graph_cost: applied.pose_graph_cost,
-            global_ba: applied.global_ba,
-            wall_s: started.elapsed().as_secs_f64(),
-        });
+        self.loops.push(applied.record(
+            LoopSource::Tag,
+            Some(sighting.id),
+            (stamp, b),
+            (matched_stamp, a),
+            Some(matched_from_query),
+            started,
+        ));
         self.loops.last()
     }
 
@@ -540,20 +534,14 @@ impl TagLoopCloser {
             path_m,
         });
         self.stats.survey_loops += 1;
-        self.loops.push(LoopClosure {
-            query_stamp,
-            matched_stamp: anchor.stamp,
-            source: LoopSource::TagSurvey,
-            tag_id: Some(sighting.id),
-            query_keyframe: b,
-            matched_keyframe: a,
-            matched_from_query: Some(matched_from_query),
-            correction_m: applied.correction_m,
-            correction_deg: applied.correction_deg,
-            pose_graph_cost: applied.pose_graph_cost,
-            global_ba: applied.global_ba,
-            wall_s: started.elapsed().as_secs_f64(),
-        });
+        self.loops.push(applied.record(
+            LoopSource::TagSurvey,
+            Some(sighting.id),
+            (query_stamp, b),
+            (anchor.stamp, a),
+            Some(matched_from_query),
+            started,
+        ));
         self.loops.last()
     }
 }
@@ -569,6 +557,36 @@ pub struct AppliedLoop {
     pub pose_graph_cost: (f64, f64),
     /// The global BA that followed, if any ran.
     pub global_ba: Option<BundleOutcome>,
+}
+
+impl AppliedLoop {
+    /// The record of this loop, found by `source` (`tag_id` for a tag loop): `query` and
+    /// `matched` are the stamps and keyframes of its two ends, `matched_from_query` its
+    /// claim (see [`LoopClosure`]), `started` when closing it began.
+    pub fn record(
+        self,
+        source: LoopSource,
+        tag_id: Option<u32>,
+        query: (Nanos, u32),
+        matched: (Nanos, u32),
+        matched_from_query: Option<Isometry3<f64>>,
+        started: std::time::Instant,
+    ) -> LoopClosure {
+        LoopClosure {
+            query_stamp: query.0,
+            matched_stamp: matched.0,
+            source,
+            tag_id,
+            query_keyframe: query.1,
+            matched_keyframe: matched.1,
+            matched_from_query,
+            correction_m: self.correction_m,
+            correction_deg: self.correction_deg,
+            pose_graph_cost: self.pose_graph_cost,
+            global_ba: self.global_ba,
+            wall_s: started.elapsed().as_secs_f64(),
+        }
+    }
 }
 
 /// Closes a loop whatever found it: the measured `a_from_b` between keyframes `a` and

@@ -269,21 +269,15 @@ impl BowLoopCloser {
         };
         self.detector.reset();
         let keyframes = &tracker.map().keyframes;
-        self.loops.push(LoopClosure {
-            query_stamp: keyframes[k as usize].stamp,
-            matched_stamp: keyframes[a as usize].stamp,
-            source: LoopSource::Bow,
-            tag_id: None,
-            query_keyframe: k,
-            matched_keyframe: a,
-            // The keyframes' own stamps: the geometric check's pose is the claim.
-            matched_from_query: Some(found.a_from_b),
-            correction_m: applied.correction_m,
-            correction_deg: applied.correction_deg,
-            pose_graph_cost: applied.pose_graph_cost,
-            global_ba: applied.global_ba,
-            wall_s: started.elapsed().as_secs_f64(),
-        });
+        // The keyframes' own stamps: the geometric check's pose is the claim.
+        self.loops.push(applied.record(
+            LoopSource::Bow,
+            None,
+            (keyframes[k as usize].stamp, k),
+            (keyframes[a as usize].stamp, a),
+            Some(found.a_from_b),
+            started,
+        ));
     }
 
     /// The relative pose of keyframes `a` (candidate) and `b` (query) from `b`'s stereo
