@@ -316,7 +316,8 @@ pub struct TagLoopCloser {
     /// or at the last survey loop, m.
     anchor: Option<(u32, f64)>,
     /// The nearest sighting so far of the surveyed tag being passed, waiting for the
-    /// robot to pass its closest approach: `(sighting, tag distance m, path m)`.
+    /// robot to pass its closest approach: the sighting, as stored, its distance to the
+    /// tag (m) and the path length at it (m).
     survey_candidate: Option<(TagSighting, StoredSighting, f64, f64)>,
     tags: BTreeMap<u32, TagRecord>,
     loops: Vec<LoopClosure>,
