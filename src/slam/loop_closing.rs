@@ -508,14 +508,18 @@ impl TagLoopCloser {
         };
         let a_from_b = edge(&Vector6::zeros(), &Vector6::zeros());
         let (a, b) = (anchor.keyframe, current.keyframe);
-        // Both surveyed poses' uncertainty on top of the sightings'.
+        // Both surveyed poses' uncertainty on top of the sightings': a surveyed
+        // orientation error turns the vector between the tags, so it also moves the far
+        // end by the angle times that lever.
+        let (sm, sr) = (self.cfg.survey_sigma_m, self.cfg.survey_sigma_rad);
+        let lever_m = anchor_tag_from_tag.translation.vector.norm();
+        let survey_sigma_m = (2.0 * (sm * sm + (sr * lever_m).powi(2))).sqrt();
         let floor = (info(self.cfg.tag_sigma_m, self.cfg.tag_sigma_rad)
             .try_inverse()
             .unwrap_or_else(Matrix6::zeros))
-            + 2.0
-                * info(self.cfg.survey_sigma_m, self.cfg.survey_sigma_rad)
-                    .try_inverse()
-                    .unwrap_or_else(Matrix6::zeros);
+            + info(survey_sigma_m, std::f64::consts::SQRT_2 * sr)
+                .try_inverse()
+                .unwrap_or_else(Matrix6::zeros);
         let information = match (anchor.covariance, current.covariance) {
             (Some(c1), Some(c2)) => edge_information(&edge, &a_from_b, &c1, &c2, &floor),
             _ => None,
