@@ -826,7 +826,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         .slam
         .cameras
         .iter()
-        .flat_map(|c| ["left", "right"].map(|side| format!("/{c}/{side}/image_rect_color")))
+        .flat_map(|c| crate::slam::system::stereo_image_topics(c))
         .collect();
     let unrecorded: Vec<&String> = slam_topics
         .iter()

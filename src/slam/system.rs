@@ -118,6 +118,11 @@ impl SlamBaseline {
     }
 }
 
+/// The left and right image topics of the stereo camera `name` that the SLAM reads.
+pub fn stereo_image_topics(name: &str) -> [String; 2] {
+    ["left", "right"].map(|side| format!("/{name}/{side}/image_rect_color"))
+}
+
 /// The estimate source of the SLAM itself.
 pub const SLAM_SOURCE: &str = "slam";
 
@@ -402,10 +407,11 @@ impl VisualSlam {
         };
         let mut slots = Vec::with_capacity(cfg.cameras.len());
         for name in &cfg.cameras {
+            let [left_topic, right_topic] = stereo_image_topics(name);
             slots.push(CameraSlot {
                 name: name.clone(),
-                left_topic: format!("/{name}/left/image_rect_color"),
-                right_topic: format!("/{name}/right/image_rect_color"),
+                left_topic,
+                right_topic,
                 left_info_topic: format!("/{name}/left/camera_info"),
                 right_info_topic: format!("/{name}/right/camera_info"),
                 front_end: StereoFrontEnd::new(cfg.features.clone())?,
