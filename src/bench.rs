@@ -653,14 +653,14 @@ pub fn slam_frames_per_second(
 pub fn slam_tracking_figures(quick: bool) -> Result<Vec<Figure>, BenchError> {
     let (seconds, repeats) = if quick { (6.0, 1) } else { (15.0, 3) };
     let (messages, tf, cfg) = slam_bench_stream(seconds)?;
-    let rig = cfg.clone();
+    let rig = &cfg;
     let single = crate::slam::SlamBaseline::SingleCamera.config(&cfg);
-    let (rig_fps, frames) = slam_frames_per_second(&rig, &messages, &tf, repeats)?;
+    let (rig_fps, frames) = slam_frames_per_second(rig, &messages, &tf, repeats)?;
     let one = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
         .map_err(|e| BenchError::Setup(e.to_string()))?;
-    let (rig_fps_1, _) = one.install(|| slam_frames_per_second(&rig, &messages, &tf, repeats))?;
+    let (rig_fps_1, _) = one.install(|| slam_frames_per_second(rig, &messages, &tf, repeats))?;
     let (single_fps, _) = slam_frames_per_second(&single, &messages, &tf, repeats)?;
     Ok(vec![
         Figure {
