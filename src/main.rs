@@ -105,12 +105,15 @@ enum Command {
         vinebench replay runs/row-loop-rtk-20260101-120000/recording.mcap\n  \
         vinebench replay field.mcap --config docs/field-topics.example.toml --out /tmp/field\n\n\
         A vinebench recording replays with the scenario it recorded (metadata) and gives the \
-        live run's estimates bit for bit. A robot's recording needs a topic-mapping file \
-        (--config): which topic is the IMU, GNSS fix, tracking camera, wheel odometry; frame \
-        renames; the map origin (default: the first fix); estimator parameters. Unmapped \
+        live run's estimates bit for bit, and its SLAM and maps when the images were recorded. \
+        A robot's recording needs a topic-mapping file \
+        (--config): which topic is the IMU, GNSS fix, tracking camera, wheel odometry, RGB-D \
+        cameras; frame renames; the map origin (default: the first fix); estimator and \
+        [mapper] parameters. Unmapped \
         topics and unsupported types are skipped and counted. A damaged or truncated file \
         replays what it still holds. The folder gets estimate_<source>.tum, ground_truth.tum \
-        (from /ground_truth/odom, used for scoring), report.json, report.md. Exit code: 0 \
+        (from /ground_truth/odom, used for scoring), loops.csv, map/, report.json, report.md. \
+        Exit code: 0 \
         expectations hold (or none), 1 one fails, 2 nothing usable or bad input.")]
     Replay {
         /// The recording (`.mcap`).
@@ -295,6 +298,17 @@ fn dispatch(cmd: Command) -> Result<u8> {
                     .map(|v| format!("ATE {v:.3} m"))
                     .unwrap_or_else(|| "no ground truth".into());
                 println!("{:<16} {:>7} poses  {ate}", s.name, s.poses);
+            }
+            for m in &r.maps {
+                let score = m
+                    .metric("map_accuracy_m")
+                    .zip(m.metric("map_f_score_2cm"))
+                    .map(|(a, f)| format!("accuracy {a:.4} m, F@2cm {f:.3}"))
+                    .unwrap_or_else(|| "not scored".into());
+                println!(
+                    "map {:<12} {:>9} points  {score}  ({}/)",
+                    m.source, m.stats.voxels, m.folder
+                );
             }
             print_verdict(&r.expectations, r.passed, &o.dir);
             Ok(if r.passed { EXIT_PASS } else { EXIT_FAIL })

@@ -9,7 +9,9 @@
 //! trajectories); the scene used for scoring is handed over only after the run.
 
 use crate::estimator::{EstimatorKind, EstimatorOutput, EstimatorSet};
-use crate::mapper::{Map, Mapper, MapperError, MapperParams, MapperStats};
+use crate::mapper::{
+    COLOR_SUFFIX, DEPTH_SUFFIX, INFO_SUFFIX, Map, Mapper, MapperError, MapperParams, MapperStats,
+};
 use crate::scenario::{LoadedScenario, ScenarioError};
 use crate::scoring::map::{MapScore, MapScoreParams, score_map};
 use serde::{Deserialize, Serialize};
@@ -40,6 +42,14 @@ impl Default for MappingParams {
         vinebench_msgs::defaults::section("mapper")
             .expect("the embedded scenarios/defaults.toml is checked by tests")
     }
+}
+
+/// Whether a scenario has a camera with an aligned depth image (what the mapper needs).
+pub fn scenario_has_depth_camera(sc: &LoadedScenario) -> bool {
+    sc.scenario.sensors.cameras.iter().any(|c| {
+        c.depth
+            .unwrap_or(c.profile == CameraProfile::D435Depth && c.right_frame.is_none())
+    })
 }
 
 /// The map metrics an expectation may use for a mapped source (`map_f_score_2cm.eif`).
@@ -76,8 +86,9 @@ pub struct MappingOutput {
     /// Scoring settings.
     pub scoring: MapScoreParams,
     /// The simulator's render geometry: the true surfaces the maps are scored against
-    /// (scoring side only; the mappers never saw it).
-    pub truth: Arc<Renderer>,
+    /// (scoring side only; the mappers never saw it). `None` for a field recording: its
+    /// maps are built and exported, not scored.
+    pub truth: Option<Arc<Renderer>>,
     /// Wall-clock seconds spent mapping (integration during the run, then finishing);
     /// for `timing.json`, not the report.
     pub wall_s: f64,
@@ -97,9 +108,14 @@ impl MappingStage {
     /// The mapping stage of a scenario, `None` when `[mapper] enabled = false`. Checks
     /// `[mapper]` (located errors): valid parameters, sources that the estimators run, a
     /// camera with depth, and expectations on map metrics only for mapped sources.
+    ///
+    /// The depth camera is looked for in the scenario's `[[sensors.cameras]]`, or, when
+    /// `recorded_topics` is given (a replay), among those topics (one ending in
+    /// [`DEPTH_SUFFIX`](crate::mapper::DEPTH_SUFFIX)).
     pub fn from_scenario(
         sc: &LoadedScenario,
         static_transforms: &StaticTransforms,
+        recorded_topics: Option<&[&str]>,
     ) -> Result<Option<MappingStage>, ScenarioError> {
         let s = &sc.scenario;
         let m = &s.mapper;
@@ -155,16 +171,25 @@ impl MappingStage {
                 ));
             }
         }
-        let has_depth = s.sensors.cameras.iter().any(|c| {
-            c.depth
-                .unwrap_or(c.profile == CameraProfile::D435Depth && c.right_frame.is_none())
-        });
-        if !has_depth {
-            return Err(sc.field_error(
-                "mapper.enabled",
-                "true needs a camera with an aligned depth image ([[sensors.cameras]] with \
-                 profile \"d435_depth\" or depth = true)",
-            ));
+        match recorded_topics {
+            None if !scenario_has_depth_camera(sc) => {
+                return Err(sc.field_error(
+                    "mapper.enabled",
+                    "true needs a camera with an aligned depth image ([[sensors.cameras]] with \
+                     profile \"d435_depth\" or depth = true)",
+                ));
+            }
+            Some(topics) if !topics.iter().any(|t| t.ends_with(DEPTH_SUFFIX)) => {
+                return Err(sc.field_error(
+                    "mapper.enabled",
+                    format!(
+                        "true needs aligned depth images: no recorded topic ends in \
+                         `{DEPTH_SUFFIX}` (16UC1, with `{COLOR_SUFFIX}` and `{INFO_SUFFIX}` of \
+                         the same camera)"
+                    ),
+                ));
+            }
+            _ => {}
         }
         if let Err(MapperError::BadParam {
             field,
@@ -212,11 +237,12 @@ impl MappingStage {
         Ok(())
     }
 
-    /// Finishes every map with its source's final trajectory.
+    /// Finishes every map with its source's final trajectory; `truth` is what scoring
+    /// compares the maps with (`None`: not scored).
     pub fn finish(
         self,
         estimates: &[EstimatorOutput],
-        truth: Arc<Renderer>,
+        truth: Option<Arc<Renderer>>,
     ) -> Result<MappingOutput, MapperError> {
         let started = Instant::now();
         let mut maps = Vec::with_capacity(self.mappers.len());
@@ -248,14 +274,14 @@ pub struct MapReport {
     pub folder: String,
     /// Counters of the mapper.
     pub stats: MapperStats,
-    /// The score against the true surfaces.
-    pub score: MapScore,
+    /// The score against the true surfaces (`None` without them: a field recording).
+    pub score: Option<MapScore>,
 }
 
 impl MapReport {
     /// The value of a map metric (see [`MapScore::METRIC_NAMES`]).
     pub fn metric(&self, name: &str) -> Option<f64> {
-        self.score.metric(name)
+        self.score.as_ref()?.metric(name)
     }
 }
 
@@ -272,7 +298,8 @@ pub fn map_folder(index: usize, source: &str) -> String {
 /// The map folder in a run folder.
 pub const MAP_DIR: &str = "map";
 
-/// Scores every map against the true surfaces (each map independently; deterministic).
+/// Scores every map against the true surfaces (each map independently; deterministic);
+/// without them ([`MappingOutput::truth`] `None`) the reports carry the counters only.
 pub fn score(out: &MappingOutput) -> Vec<MapReport> {
     out.maps
         .iter()
@@ -281,11 +308,10 @@ pub fn score(out: &MappingOutput) -> Vec<MapReport> {
             source: m.source.clone(),
             folder: map_folder(i, &m.source),
             stats: m.map.stats,
-            score: score_map(
-                &m.map.cloud.positions,
-                &out.truth.scene().trace,
-                &out.scoring,
-            ),
+            score: out
+                .truth
+                .as_ref()
+                .map(|truth| score_map(&m.map.cloud.positions, &truth.scene().trace, &out.scoring)),
         })
         .collect()
 }

@@ -6,14 +6,16 @@
 //! so the estimates equal the live run's bit for bit. The recorded scenario's visual SLAM
 //! (`[slam]` and its baselines) runs too, on the recorded images, IMU and `camera_info`
 //! (a recording made with `[recording] exclude_topics` over the image topics has none to
-//! give it): same trajectories, `loops.csv` and SLAM metrics as live. A field recording needs a
+//! give it): same trajectories, `loops.csv` and SLAM metrics as live. So does its `[mapper]`,
+//! on the recorded RGB-D frames: the same maps as live, scored against the world generated
+//! again from the recorded scenario. A field recording needs a
 //! topic-mapping file ([`ReplayConfig`], `--config`): which topic is the IMU, the GNSS
 //! fix, the tracking camera, ...; the map origin (or the first fix) and estimator
-//! parameters. Topics nobody asked for and message types vinebench does not decode are
+//! parameters, and `[mapper]` for maps (built and exported, not scored). Topics nobody asked for and message types vinebench does not decode are
 //! skipped and counted, never fatal; a damaged file gives what it still holds.
 //!
 //! Outputs: `estimate_<source>.tum`, `ground_truth.tum` (from `/ground_truth/odom` when
-//! present, which scoring then uses), `loops.csv` (with a SLAM and ground truth),
+//! present, which scoring then uses), `loops.csv` (with a SLAM and ground truth), `map/`,
 //! `report.json`, `report.md`, `trajectories.svg`.
 
 use crate::estimator::EstimatorSet;
@@ -116,6 +118,11 @@ pub struct ReplayConfig {
     pub estimators: Option<toml::Table>,
     /// `[scoring]` as in a scenario file, over `scenarios/defaults.toml`.
     pub scoring: Option<toml::Table>,
+    /// `[mapper]` as in a scenario file, over `scenarios/defaults.toml`: maps from the
+    /// recorded RGB-D topics (RealSense names: `<cam>/color/image_raw`,
+    /// `<cam>/aligned_depth_to_color/image_raw`, `<cam>/color/camera_info`, listed in
+    /// `topics.cameras`) and the estimates. A field recording's maps are not scored.
+    pub mapper: Option<toml::Table>,
     /// Expectations in the scenario language, on the estimate sources.
     #[serde(default)]
     pub expect: Vec<String>,
@@ -220,6 +227,10 @@ pub struct ReplayReport {
     pub ground_truth: Option<metrics::LoopMetrics>,
     /// One entry per estimator.
     pub sources: Vec<ReplaySource>,
+    /// The maps of `[mapper]` (recorded scenario or mapping file), scored when the
+    /// recording is a vinebench run (its world is generated again from the recorded
+    /// scenario for the true surfaces).
+    pub maps: Vec<crate::mapping::MapReport>,
     /// Expectation outcomes (with ground truth only).
     pub expectations: Vec<ExpectationResult>,
     /// True when every expectation holds.
@@ -590,6 +601,9 @@ fn scenario_of_config(
     if let Some(s) = &cfg.scoring {
         t.insert("scoring".into(), toml::Value::Table(s.clone()));
     }
+    if let Some(m) = &cfg.mapper {
+        t.insert("mapper".into(), toml::Value::Table(m.clone()));
+    }
     t.insert(
         "expect".into(),
         toml::Value::Array(
@@ -612,6 +626,16 @@ fn scenario_of_config(
         },
         e => ReplayError::Scenario(e),
     })
+}
+
+/// The render geometry of a recorded vinebench scenario: its world generated again from
+/// the recorded seed and `[world]` (the same bits as the live run's), for map scoring.
+fn truth_renderer(
+    sc: &LoadedScenario,
+) -> Result<vinebench_sim::render::shade::Renderer, vinebench_sim::params::ParamError> {
+    let s = &sc.scenario;
+    let world = vinebench_sim::world::World::generate(s.seed, &s.world)?;
+    vinebench_sim::render::build_renderer(&world, &s.render)
 }
 
 fn safe_name(s: &str) -> String {
@@ -854,12 +878,39 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     } else {
         Vec::new()
     };
-    let mut slam_error: Option<crate::slam::SlamError> = None;
-    let mut estimators = EstimatorSet::new(&s.estimators, static_tf, LocalEnu::new(s.origin))
-        .map_err(|e| ReplayError::Input {
-            file: sc.file.clone(),
+    // The maps of `[mapper]`: a vinebench run recorded without its depth images is noted
+    // and replayed without maps; a mapping file that asks for maps needs the depth topics.
+    let camera_topics_present: Vec<&str> = present
+        .iter()
+        .copied()
+        .filter(|t| roles.get(*t) == Some(&Role::Camera))
+        .collect();
+    let depth_recorded = camera_topics_present
+        .iter()
+        .any(|t| t.ends_with(crate::mapper::DEPTH_SUFFIX));
+    let mut mapping = if s.mapper.enabled && user_cfg.is_none() && !depth_recorded {
+        missing_topics.push(
+            "mapper: no depth images recorded (excluded by [recording] exclude_topics?), maps \
+             not built"
+                .to_string(),
+        );
+        None
+    } else {
+        crate::mapping::MappingStage::from_scenario(&sc, &static_tf, Some(&camera_topics_present))
+            .map_err(|e| ReplayError::Input {
+            file: cfg_file.clone().unwrap_or_else(|| file_name.clone()),
             problem: e.to_string(),
-        })?;
+        })?
+    };
+    let mut map_error: Option<crate::mapper::MapperError> = None;
+    let mut slam_error: Option<crate::slam::SlamError> = None;
+    let mut estimators =
+        EstimatorSet::new(&s.estimators, static_tf.clone(), LocalEnu::new(s.origin)).map_err(
+            |e| ReplayError::Input {
+                file: sc.file.clone(),
+                problem: e.to_string(),
+            },
+        )?;
     // Second scan: sensor messages in arrival (publish-time) order, ties in the recorded
     // (delivery) order, straight into the estimators.
     let mut order = PublishOrder::new();
@@ -872,7 +923,16 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
                 }
             }
         }
-        estimators.push(&TimedMessage { arrival, msg });
+        let tm = TimedMessage { arrival, msg };
+        estimators.push(&tm);
+        // After the estimators, as in a live run: the mappers integrate what the
+        // estimates now cover.
+        if map_error.is_none()
+            && let Some(m) = &mut mapping
+            && let Err(e) = m.push(&tm.msg, &estimators)
+        {
+            map_error = Some(e);
+        }
     };
     reader::scan_file(file, |ch, m| {
         if let Some(mut msg) = collect(Scan::Sensors, &roles, &mut camera_topics, &mut got, ch, m) {
@@ -885,6 +945,12 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         return Err(ReplayError::Input {
             file: file_name,
             problem: e.to_string(),
+        });
+    }
+    if let Some(e) = map_error {
+        return Err(ReplayError::Input {
+            file: file_name,
+            problem: format!("mapper: {e}"),
         });
     }
     if got.replayed.is_empty() {
@@ -904,6 +970,33 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     let slam: Vec<crate::slam::SlamOutput> = slam.into_iter().map(|v| v.finish()).collect();
     out.estimators
         .extend(slam.iter().map(crate::slam::estimator_output));
+    let mapping = match mapping {
+        Some(m) => {
+            // The true surfaces of a vinebench run: its world, generated again.
+            let truth = if user_cfg.is_none() {
+                Some(Arc::new(truth_renderer(&sc).map_err(|e| {
+                    ReplayError::Input {
+                        file: file_name.clone(),
+                        problem: format!("recorded scenario: {e}"),
+                    }
+                })?))
+            } else {
+                None
+            };
+            Some(
+                m.finish(&out.estimators, truth)
+                    .map_err(|e| ReplayError::Input {
+                        file: file_name.clone(),
+                        problem: format!("mapper: {e}"),
+                    })?,
+            )
+        }
+        None => None,
+    };
+    let maps = mapping
+        .as_ref()
+        .map(crate::mapping::score)
+        .unwrap_or_default();
 
     // Outputs.
     let name = safe_name(&s.name);
@@ -914,6 +1007,12 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             .join(format!("replay-{name}-{}", crate::runner::utc_stamp())),
     };
     std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+    if let Some(m) = &mapping {
+        crate::mapping::export(&dir, m).map_err(|e| ReplayError::Io {
+            path: dir.join(crate::mapping::MAP_DIR).display().to_string(),
+            source: std::io::Error::other(e.to_string()),
+        })?;
+    }
     for e in &out.estimators {
         let p = dir.join(format!("estimate_{}.tum", e.name));
         scoring::tum::write_tum(&p, &e.trajectory).map_err(io_err(&p))?;
@@ -997,6 +1096,9 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
                     if source == crate::expect::ROBOT_SOURCE {
                         return robot.get(metric).copied();
                     }
+                    if crate::mapping::is_map_metric(metric) {
+                        return maps.iter().find(|m| m.source == source)?.metric(metric);
+                    }
                     let r = sources.iter().find(|r| r.name == source)?;
                     r.score
                         .as_ref()
@@ -1026,6 +1128,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         ground_truth_poses: truth.len(),
         ground_truth: metrics::closed_loop(&truth).ok(),
         sources,
+        maps,
         expectations,
         passed,
     };
@@ -1108,6 +1211,9 @@ fn write_report(
         if report.ground_truth_poses > 0 {
             let _ = writeln!(md, "\nLoop closures: `loops.csv`.");
         }
+    }
+    if !report.maps.is_empty() {
+        md.push_str(&crate::report::maps_markdown(&report.maps));
     }
     if !report.expectations.is_empty() {
         let _ = writeln!(md, "\n## Expectations\n");

@@ -643,7 +643,7 @@ fn slam_markdown(
 }
 
 /// The `## Maps` section: one row per mapped source.
-fn maps_markdown(maps: &[crate::mapping::MapReport]) -> String {
+pub(crate) fn maps_markdown(maps: &[crate::mapping::MapReport]) -> String {
     let mut md = String::new();
     let _ = writeln!(
         md,

@@ -482,7 +482,7 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
             tracking_camera: &s.sensors.tracking_camera.frame,
         })
         .map_err(estimator_error)?;
-    let mapping = crate::mapping::MappingStage::from_scenario(sc, &robot.static_transforms)?;
+    let mapping = crate::mapping::MappingStage::from_scenario(sc, &robot.static_transforms, None)?;
     let slam = slam_from_scenario(sc, &robot.static_transforms, Some(&world))?;
     Ok(Setup {
         world,
@@ -883,7 +883,7 @@ pub fn simulate_setup(
     let slam: Vec<crate::slam::SlamOutput> = slam.into_iter().map(|v| v.finish()).collect();
     estimates.extend(slam.iter().map(crate::slam::estimator_output));
     let mapping = match (mapping, renderer) {
-        (Some(m), Some(truth)) => Some(m.finish(&estimates, truth)?),
+        (Some(m), Some(truth)) => Some(m.finish(&estimates, Some(truth))?),
         _ => None,
     };
     let fault_windows = s

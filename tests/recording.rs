@@ -844,6 +844,117 @@ fn replay_runs_the_recorded_slam_to_the_same_trajectories() {
     );
 }
 
+/// The first seconds of `scenarios/map-row.toml` at a lower resolution and rate.
+fn short_map_row() -> LoadedScenario {
+    let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/map-row.toml");
+    let mut sc = LoadedScenario::load(&file).unwrap();
+    sc.scenario.max_duration_s = 4.0;
+    for c in &mut sc.scenario.sensors.cameras {
+        c.width = Some(320);
+        c.height = Some(240);
+        c.rate_hz = Some(3.0);
+    }
+    // Written for the whole row: not what 4 s can show.
+    sc.expectations.clear();
+    sc
+}
+
+/// `vinebench replay` builds the recorded `[mapper]`'s maps from the recorded RGB-D
+/// frames and estimates: the same files and scores as the live run; a field recording's
+/// mapping file can ask for maps too (built and exported, not scored).
+#[test]
+fn replay_builds_the_recorded_maps_as_the_live_run_did() {
+    let tmp = tempfile::tempdir().unwrap();
+    let live = tmp.path().join("live");
+    let outcome = run_into(&short_map_row(), &live);
+    assert_eq!(outcome.report.maps.len(), 2);
+    let rep = tmp.path().join("replay");
+    let r = replay_run(&live, &rep);
+    assert_eq!(r.report.maps.len(), 2);
+    for (a, b) in outcome.report.maps.iter().zip(&r.report.maps) {
+        assert_eq!(a.source, b.source);
+        assert!(a.stats.frames_integrated >= 20, "{:?}", a.stats);
+        assert_eq!(a.stats, b.stats);
+        assert!(a.score.is_some());
+        assert_eq!(a.score, b.score, "{}", a.source);
+    }
+    for f in ["map/map.ply", "map/mesh.ply", "map/gnss/map.ply"] {
+        let a = std::fs::read(live.join(f)).unwrap();
+        assert!(a.len() > 10_000, "{f}: {} bytes", a.len());
+        assert!(a == std::fs::read(rep.join(f)).unwrap(), "{f} differs");
+    }
+    let md = std::fs::read_to_string(rep.join("report.md")).unwrap();
+    assert!(md.contains("## Maps"), "{md}");
+
+    // A mapping file over the same recording: topics by name, a map of the EIF.
+    let cfg = tmp.path().join("topics.toml");
+    let cams: Vec<String> = ["camera_center", "camera_left", "camera_right"]
+        .iter()
+        .flat_map(|c| {
+            [
+                "color/image_raw",
+                "color/camera_info",
+                "aligned_depth_to_color/image_raw",
+            ]
+            .map(|t| format!("\"/{c}/{t}\""))
+        })
+        .collect();
+    std::fs::write(
+        &cfg,
+        format!(
+            "[topics]\nimu = \"/imu/data\"\ngnss_fix = \"/gnss/fix\"\n\
+             tracking_odom = \"/tracking_camera/odom/sample\"\ncameras = [{}]\n\
+             [estimators]\nrun = [\"eif\"]\n\
+             [mapper]\nenabled = true\nsources = [\"eif\"]\n[mapper.map]\nmesh = false\n",
+            cams.join(", ")
+        ),
+    )
+    .unwrap();
+    let field = replay(
+        &live.join("recording.mcap"),
+        &ReplayOptions {
+            config: Some(cfg.clone()),
+            out_dir: Some(tmp.path().join("field")),
+            ..ReplayOptions::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(field.report.maps.len(), 1);
+    let m = &field.report.maps[0];
+    assert!(m.score.is_none());
+    assert!(
+        m.stats.frames_integrated >= 20 && m.stats.voxels > 10_000,
+        "{:?}",
+        m.stats
+    );
+    let ply = vinebench::mapper::ply::read_cloud(&tmp.path().join("field/map/map.ply")).unwrap();
+    assert_eq!(ply.positions.len() as u64, m.stats.voxels);
+    assert!(!tmp.path().join("field/map/mesh.ply").exists());
+
+    // Without depth topics, a mapping file that asks for maps is told what is missing.
+    std::fs::write(
+        &cfg,
+        "[topics]\nimu = \"/imu/data\"\ngnss_fix = \"/gnss/fix\"\n\
+         cameras = [\"/camera_center/color/image_raw\"]\n\
+         [estimators]\nrun = [\"eif\"]\n[mapper]\nenabled = true\nsources = [\"eif\"]\n",
+    )
+    .unwrap();
+    let e = replay(
+        &live.join("recording.mcap"),
+        &ReplayOptions {
+            config: Some(cfg.clone()),
+            out_dir: Some(tmp.path().join("bad")),
+            ..ReplayOptions::default()
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("topics.toml") && e.contains("mapper.enabled") && e.contains("aligned_depth"),
+        "{e}"
+    );
+}
+
 #[test]
 fn a_field_recording_replays_through_a_topic_mapping() {
     let tmp = tempfile::tempdir().unwrap();

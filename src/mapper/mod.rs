@@ -85,6 +85,11 @@ pub const INFO_SUFFIX: &str = "/color/camera_info";
 pub struct MapperParams {
     /// Voxel edge of the merged map, m (paper: 0.01).
     pub voxel_m: f64,
+    /// Points a voxel needs to be in the map (1 keeps every occupied voxel).
+    pub min_points_per_voxel: u32,
+    /// A voxel with fewer than `min_points_per_voxel` points that no frame of the last
+    /// `prune_after_s` (s, message time) touched is dropped while the run goes on.
+    pub prune_after_s: f64,
     /// Nearest depth used, m.
     pub min_depth_m: f64,
     /// Farthest depth used, m (the D435's error grows with z²).
@@ -193,6 +198,16 @@ impl MapperParams {
                 "ball_radii_m",
                 "a non-empty list of finite radii above poisson_radius_m / 2",
                 format!("{:?}", self.ball_radii_m),
+            );
+        }
+        if self.min_points_per_voxel == 0 {
+            return bad("min_points_per_voxel", "at least 1", "0".to_string());
+        }
+        if !(self.prune_after_s > 0.0 && self.prune_after_s.is_finite()) {
+            return bad(
+                "prune_after_s",
+                "positive and finite",
+                self.prune_after_s.to_string(),
             );
         }
         if self.max_pending_frames == 0 {
@@ -338,6 +353,9 @@ pub struct MapperStats {
     pub pixels_invalid: u64,
     /// Occupied voxels (map points).
     pub voxels: u64,
+    /// Voxels left out with fewer than [`MapperParams::min_points_per_voxel`] points
+    /// (during the run and at the end).
+    pub voxels_sparse: u64,
     /// Map points with GRVI above the threshold.
     pub vegetation_points: u64,
     /// Points of the Poisson-disk subsample.
@@ -388,6 +406,10 @@ pub struct Mapper {
     ready: BTreeMap<(Nanos, String), RgbdFrame>,
     rays: BTreeMap<String, RayTable>,
     grid: VoxelGrid,
+    /// Stamp of every frame inserted into the grid (its batch index).
+    batch_stamps: Vec<Nanos>,
+    /// Stamp of the newest frame when the grid was last pruned.
+    pruned_at: Option<Nanos>,
     stats: MapperStats,
     points: Vec<[f64; 3]>,
     colors: Vec<[u8; 3]>,
@@ -412,6 +434,8 @@ impl Mapper {
         params.validate()?;
         Ok(Mapper {
             grid: VoxelGrid::new(params.voxel_m),
+            batch_stamps: Vec::new(),
+            pruned_at: None,
             params,
             tf: static_transforms,
             partial: BTreeMap::new(),
@@ -641,9 +665,32 @@ impl Mapper {
             &self.colors,
             [eye.x as f32, eye.y as f32, eye.z as f32],
         );
+        self.batch_stamps.push(depth.stamp);
         self.stats.points_integrated += self.points.len() as u64;
         self.stats.frames_integrated += 1;
+        self.prune(depth.stamp);
         Ok(())
+    }
+
+    /// Drops the sparse voxels that no frame of the last `prune_after_s` touched, at most
+    /// every quarter of that (message time, so the result does not depend on speed).
+    fn prune(&mut self, newest: Nanos) {
+        if self.params.min_points_per_voxel <= 1 {
+            return;
+        }
+        let after = Nanos::from_secs_f64(self.params.prune_after_s);
+        let every = Nanos::from_secs_f64(self.params.prune_after_s / 4.0);
+        if self.pruned_at.is_some_and(|t| newest < t + every) {
+            return;
+        }
+        self.pruned_at = Some(newest);
+        let horizon = newest - after;
+        // Frames come in stamp order (within the estimators' re-ordering window).
+        let before = self.batch_stamps.partition_point(|t| *t < horizon) as u32;
+        if before > 0 {
+            let n = self.grid.prune(self.params.min_points_per_voxel, before);
+            self.stats.voxels_sparse += n as u64;
+        }
     }
 
     /// Integrates what `trajectory` covers, skips the rest (counted), and builds the
@@ -654,12 +701,13 @@ impl Mapper {
         self.stats.frames_incomplete += self.partial.values().map(|m| m.len() as u64).sum::<u64>();
         let mut stats = self.stats;
         let params = self.params;
-        let voxels = self.grid.voxels();
-        drop(self.grid);
-        let positions: Vec<[f64; 3]> = voxels.iter().map(|v| v.centroid).collect();
-        let viewpoints: Vec<[f32; 3]> = voxels.iter().map(|v| v.viewpoint).collect();
-        let colors: Vec<[u8; 3]> = voxels.iter().map(|v| v.rgb).collect();
-        drop(voxels);
+        let occupied = self.grid.len() as u64;
+        let voxel::VoxelPoints {
+            centroids: positions,
+            colors,
+            viewpoints,
+        } = self.grid.into_points(params.min_points_per_voxel);
+        stats.voxels_sparse += occupied - positions.len() as u64;
         let grvi: Vec<f32> = colors.iter().map(|c| grvi_of(*c)).collect();
         let elevation = elevation(&positions, params.ground_cell_m, params.ground_percentile);
         let normals = normals::estimate_normals(&positions, &viewpoints, params.normal_neighbours);

@@ -2,6 +2,14 @@
 //! (position, colour, count, last viewpoint), so memory grows with the mapped area and
 //! not with the number of frames.
 //!
+//! A voxel takes 40 bytes in its shard (before the hash table's slack): the key, the sum
+//! of its points' offsets from the voxel's corner in `f32` (an offset is below one voxel
+//! edge, so the centroid is exact to about `count · 1e-7` voxel edges), the colour sums,
+//! the count and the index of the batch (frame) that saw it last; the batches' sensor
+//! positions are kept once, in a table. [`VoxelGrid::prune`] drops the voxels with too
+//! few points that no recent batch touched: the depth noise of a far surface scatters
+//! single points over many voxels that never see a second one.
+//!
 //! The map is split into [`SHARDS`] hash maps by a hash of the key. A batch of points is
 //! keyed in parallel, bucketed by shard (a counting sort that keeps input order), and the
 //! shards are filled in parallel. Each shard sees its points in input order, so every sum
@@ -25,14 +33,14 @@ const NO_KEY: u64 = u64::MAX;
 /// Running sums of one voxel.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VoxelAcc {
-    /// Sum of the world positions, m.
-    pub sum: [f64; 3],
+    /// Sum of the points' offsets from the voxel's lowest corner, m.
+    pub offset_sum: [f32; 3],
     /// Sum of the sRGB colours.
     pub rgb: [u32; 3],
     /// Number of points.
     pub count: u32,
-    /// Position of the sensor (camera centre, world frame) that saw the voxel last.
-    pub viewpoint: [f32; 3],
+    /// The batch ([`VoxelGrid::insert`] call) that touched the voxel last.
+    pub batch: u32,
 }
 
 /// One occupied voxel of the output: the centroid and mean colour of its points.
@@ -50,13 +58,27 @@ pub struct Voxel {
     pub viewpoint: [f32; 3],
 }
 
+/// The occupied voxels as arrays, sorted by key (see [`VoxelGrid::into_points`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct VoxelPoints {
+    /// Centroids of the voxels' points, world frame, m.
+    pub centroids: Vec<[f64; 3]>,
+    /// Mean sRGB colours, rounded.
+    pub colors: Vec<[u8; 3]>,
+    /// Sensor positions that saw each voxel last, world frame.
+    pub viewpoints: Vec<[f32; 3]>,
+}
+
 /// The incremental voxel grid.
 #[derive(Clone, Debug)]
 pub struct VoxelGrid {
     voxel_m: f64,
     shards: Vec<FxHashMap<u64, VoxelAcc>>,
+    /// Sensor position of every batch, world frame.
+    viewpoints: Vec<[f32; 3]>,
     dropped: u64,
     inserted: u64,
+    pruned: u64,
     // Scratch reused between batches.
     keys: Vec<u64>,
     order: Vec<u32>,
@@ -74,8 +96,10 @@ impl VoxelGrid {
         VoxelGrid {
             voxel_m,
             shards: (0..SHARDS).map(|_| FxHashMap::default()).collect(),
+            viewpoints: Vec::new(),
             dropped: 0,
             inserted: 0,
+            pruned: 0,
             keys: Vec::new(),
             order: Vec::new(),
         }
@@ -106,10 +130,41 @@ impl VoxelGrid {
         self.dropped
     }
 
+    /// Voxels removed by [`VoxelGrid::prune`].
+    pub fn pruned(&self) -> u64 {
+        self.pruned
+    }
+
+    /// Batches inserted so far (the next batch's index).
+    pub fn batches(&self) -> u32 {
+        self.viewpoints.len() as u32
+    }
+
     /// Approximate heap bytes held by the voxels.
     pub fn memory_bytes(&self) -> usize {
         let entry = std::mem::size_of::<(u64, VoxelAcc)>() + 1;
-        self.shards.iter().map(|s| s.capacity() * entry).sum()
+        self.shards
+            .iter()
+            .map(|s| s.capacity() * entry)
+            .sum::<usize>()
+            + self.viewpoints.capacity() * std::mem::size_of::<[f32; 3]>()
+    }
+
+    /// Drops every voxel with fewer than `min_count` points that no batch from
+    /// `before_batch` on has touched; returns how many. Sums of the voxels kept are
+    /// untouched, and a dropped voxel that a later batch hits starts again from zero.
+    pub fn prune(&mut self, min_count: u32, before_batch: u32) -> usize {
+        let removed: usize = self
+            .shards
+            .par_iter_mut()
+            .map(|s| {
+                let n = s.len();
+                s.retain(|_, a| a.count >= min_count || a.batch >= before_batch);
+                n - s.len()
+            })
+            .sum();
+        self.pruned += removed as u64;
+        removed
     }
 
     /// The integer voxel index `(i, j, k)` of a point: `floor(p / voxel_m)` (a true
@@ -150,28 +205,34 @@ impl VoxelGrid {
         self.index_of(p).map_or(NO_KEY, Self::key_of_index)
     }
 
+    /// The lowest corner of a voxel, m.
+    #[inline]
+    fn corner(key: u64, voxel_m: f64) -> [f64; 3] {
+        Self::index_of_key(key).map(|i| i as f64 * voxel_m)
+    }
+
     #[inline]
     fn accumulate(
         shard: &mut FxHashMap<u64, VoxelAcc>,
+        voxel_m: f64,
         key: u64,
         p: [f64; 3],
         c: [u8; 3],
-        view: [f32; 3],
+        batch: u32,
     ) {
+        let corner = Self::corner(key, voxel_m);
         let acc = shard.entry(key).or_insert(VoxelAcc {
-            sum: [0.0; 3],
+            offset_sum: [0.0; 3],
             rgb: [0; 3],
             count: 0,
-            viewpoint: view,
+            batch,
         });
-        acc.sum[0] += p[0];
-        acc.sum[1] += p[1];
-        acc.sum[2] += p[2];
-        acc.rgb[0] += u32::from(c[0]);
-        acc.rgb[1] += u32::from(c[1]);
-        acc.rgb[2] += u32::from(c[2]);
+        for i in 0..3 {
+            acc.offset_sum[i] += (p[i] - corner[i]) as f32;
+            acc.rgb[i] += u32::from(c[i]);
+        }
         acc.count += 1;
-        acc.viewpoint = view;
+        acc.batch = batch;
     }
 
     /// Adds a batch of world points with their colours, all seen from `viewpoint` (the
@@ -179,6 +240,9 @@ impl VoxelGrid {
     pub fn insert(&mut self, points: &[[f64; 3]], colors: &[[u8; 3]], viewpoint: [f32; 3]) {
         let n = points.len().min(colors.len());
         let (points, colors) = (&points[..n], &colors[..n]);
+        let batch = self.viewpoints.len() as u32;
+        self.viewpoints.push(viewpoint);
+        let voxel_m = self.voxel_m;
         if n < PARALLEL_MIN_POINTS {
             for (p, c) in points.iter().zip(colors) {
                 let key = self.key(*p);
@@ -187,7 +251,8 @@ impl VoxelGrid {
                     continue;
                 }
                 self.inserted += 1;
-                Self::accumulate(&mut self.shards[shard_of(key)], key, *p, *c, viewpoint);
+                let shard = &mut self.shards[shard_of(key)];
+                Self::accumulate(shard, voxel_m, key, *p, *c, batch);
             }
             return;
         }
@@ -236,11 +301,27 @@ impl VoxelGrid {
             .for_each(|(s, shard)| {
                 for &i in &order_ref[counts[s]..counts[s + 1]] {
                     let i = i as usize;
-                    Self::accumulate(shard, keys_ref[i], points[i], colors[i], viewpoint);
+                    let (k, p, c) = (keys_ref[i], points[i], colors[i]);
+                    Self::accumulate(shard, voxel_m, k, p, c, batch);
                 }
             });
         self.keys = keys;
         self.order = order;
+    }
+
+    fn voxel(&self, key: u64, a: &VoxelAcc) -> Voxel {
+        let n = f64::from(a.count);
+        let mean = |v: u32| ((f64::from(v) / n).round()).min(255.0) as u8;
+        let corner = Self::corner(key, self.voxel_m);
+        Voxel {
+            key,
+            // Clamped: an offset a hair below the edge may round up to it in f32.
+            centroid: [0, 1, 2]
+                .map(|i| corner[i] + (f64::from(a.offset_sum[i]) / n).clamp(0.0, self.voxel_m)),
+            rgb: a.rgb.map(mean),
+            count: a.count,
+            viewpoint: self.viewpoints[a.batch as usize],
+        }
     }
 
     /// The occupied voxels, sorted by key: centroid, mean colour, count and viewpoint.
@@ -248,21 +329,50 @@ impl VoxelGrid {
         let mut out: Vec<Voxel> = self
             .shards
             .par_iter()
-            .flat_map_iter(|s| {
-                s.iter().map(|(&key, a)| {
-                    let n = f64::from(a.count);
-                    let mean = |v: u32| ((f64::from(v) / n).round()).min(255.0) as u8;
-                    Voxel {
-                        key,
-                        centroid: [a.sum[0] / n, a.sum[1] / n, a.sum[2] / n],
-                        rgb: [mean(a.rgb[0]), mean(a.rgb[1]), mean(a.rgb[2])],
-                        count: a.count,
-                        viewpoint: a.viewpoint,
-                    }
-                })
-            })
+            .flat_map_iter(|s| s.iter().map(|(&key, a)| self.voxel(key, a)))
             .collect();
         out.par_sort_unstable_by_key(|v| v.key);
+        out
+    }
+
+    /// The raw sums of the voxels with at least `min_count` points, sorted by key; each
+    /// shard is freed as it is read, so the grid and the output are not both held whole.
+    fn take_sorted_sums(&mut self, min_count: u32) -> Vec<(u64, VoxelAcc)> {
+        let kept: usize = self
+            .shards
+            .iter()
+            .map(|s| s.values().filter(|a| a.count >= min_count).count())
+            .sum();
+        let mut out = Vec::with_capacity(kept);
+        for s in std::mem::take(&mut self.shards) {
+            out.extend(s.into_iter().filter(|(_, a)| a.count >= min_count));
+        }
+        out.par_sort_unstable_by_key(|e| e.0);
+        out
+    }
+
+    /// The voxels with at least `min_count` points, sorted by key.
+    pub fn into_voxels(mut self, min_count: u32) -> Vec<Voxel> {
+        let sums = self.take_sorted_sums(min_count);
+        sums.par_iter().map(|(k, a)| self.voxel(*k, a)).collect()
+    }
+
+    /// [`VoxelGrid::into_voxels`] as separate arrays (centroids, mean colours,
+    /// viewpoints), for a large map: about 80 bytes per voxel at the peak instead of 100.
+    pub fn into_points(mut self, min_count: u32) -> VoxelPoints {
+        let sums = self.take_sorted_sums(min_count);
+        let n = sums.len();
+        let mut out = VoxelPoints {
+            centroids: Vec::with_capacity(n),
+            colors: Vec::with_capacity(n),
+            viewpoints: Vec::with_capacity(n),
+        };
+        for (k, a) in &sums {
+            let v = self.voxel(*k, a);
+            out.centroids.push(v.centroid);
+            out.colors.push(v.rgb);
+            out.viewpoints.push(v.viewpoint);
+        }
         out
     }
 }
