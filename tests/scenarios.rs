@@ -57,7 +57,7 @@ fn camera_row_meets_its_expectations() {
     check("camera-row.toml");
 }
 
-/// About 12 minutes on 2 cores (rendering, mapping two sources, meshing 10 M points):
+/// About 6 minutes on 2 cores (rendering, mapping two sources, meshing 7 M points):
 /// too slow for every CI run. `tests/mapper.rs` runs its first 3 s on every run
 /// (`a_mapping_run_writes_map_mesh_model_and_scores`); run this one with
 /// `cargo test --release --test scenarios -- --ignored map_`.

@@ -24,8 +24,10 @@
 //!    samples). Frames outside the trajectory's span are skipped and counted.
 //! 3. **Merging** ([`voxel::VoxelGrid`]): the three cameras' points go into one
 //!    incremental voxel grid (default 1 cm): running sums per voxel, so memory grows with
-//!    the mapped area, not with the number of frames. The map holds each occupied
-//!    voxel's centroid and mean colour.
+//!    the mapped area, not with the number of frames. The map holds the centroid and
+//!    mean colour of each voxel with at least [`MapperParams::min_points_per_voxel`]
+//!    points; sparser voxels that no frame touched for [`MapperParams::prune_after_s`]
+//!    are dropped during the run (depth noise scatters single points over many voxels).
 //! 4. **Attributes** ([`Mapper::finish`]): GRVI = (G − R)/(G + R) of the mean sRGB
 //!    colour, vegetation where GRVI > [`MapperParams::grvi_threshold`]; elevation = height
 //!    above the local ground, where the ground of a `ground_cell_m` × `ground_cell_m` xy
