@@ -11,8 +11,9 @@
 //! again from the recorded scenario. A field recording needs a
 //! topic-mapping file ([`ReplayConfig`], `--config`): which topic is the IMU, the GNSS
 //! fix, the tracking camera, ...; the map origin (or the first fix) and estimator
-//! parameters, and `[mapper]` for maps (built and exported, not scored). Topics nobody asked for and message types vinebench does not decode are
-//! skipped and counted, never fatal; a damaged file gives what it still holds.
+//! parameters, and `[mapper]` for maps (built and exported, not scored). Topics nobody
+//! asked for and message types vinebench does not decode are skipped and counted, never
+//! fatal; a damaged file gives what it still holds.
 //!
 //! Outputs: `estimate_<source>.tum`, `ground_truth.tum` (from `/ground_truth/odom` when
 //! present, which scoring then uses), `loops.csv` (with a SLAM and ground truth), `map/`,
