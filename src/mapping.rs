@@ -111,7 +111,7 @@ impl MappingStage {
     ///
     /// The depth camera is looked for in the scenario's `[[sensors.cameras]]`, or, when
     /// `recorded_topics` is given (a replay), among those topics (one ending in
-    /// [`DEPTH_SUFFIX`](crate::mapper::DEPTH_SUFFIX)).
+    /// [`DEPTH_SUFFIX`]).
     pub fn from_scenario(
         sc: &LoadedScenario,
         static_transforms: &StaticTransforms,
