@@ -78,7 +78,6 @@ pub struct VoxelGrid {
     viewpoints: Vec<[f32; 3]>,
     dropped: u64,
     inserted: u64,
-    pruned: u64,
     // Scratch reused between batches.
     keys: Vec<u64>,
     order: Vec<u32>,
@@ -99,7 +98,6 @@ impl VoxelGrid {
             viewpoints: Vec::new(),
             dropped: 0,
             inserted: 0,
-            pruned: 0,
             keys: Vec::new(),
             order: Vec::new(),
         }
@@ -130,16 +128,6 @@ impl VoxelGrid {
         self.dropped
     }
 
-    /// Voxels removed by [`VoxelGrid::prune`].
-    pub fn pruned(&self) -> u64 {
-        self.pruned
-    }
-
-    /// Batches inserted so far (the next batch's index).
-    pub fn batches(&self) -> u32 {
-        self.viewpoints.len() as u32
-    }
-
     /// Approximate heap bytes held by the voxels.
     pub fn memory_bytes(&self) -> usize {
         let entry = std::mem::size_of::<(u64, VoxelAcc)>() + 1;
@@ -154,17 +142,14 @@ impl VoxelGrid {
     /// `before_batch` on has touched; returns how many. Sums of the voxels kept are
     /// untouched, and a dropped voxel that a later batch hits starts again from zero.
     pub fn prune(&mut self, min_count: u32, before_batch: u32) -> usize {
-        let removed: usize = self
-            .shards
+        self.shards
             .par_iter_mut()
             .map(|s| {
                 let n = s.len();
                 s.retain(|_, a| a.count >= min_count || a.batch >= before_batch);
                 n - s.len()
             })
-            .sum();
-        self.pruned += removed as u64;
-        removed
+            .sum()
     }
 
     /// The integer voxel index `(i, j, k)` of a point: `floor(p / voxel_m)` (a true
