@@ -246,8 +246,8 @@ pub fn mapper_figures(quick: bool) -> Result<Vec<Figure>, BenchError> {
         .build()
         .map_err(|e| BenchError::Setup(e.to_string()))?
         .install(|| bpa_seconds(&points, &normals, &[0.01, 0.02, 0.04], 1).0);
-    // Not the whole loop (its mesh alone peaks at 4.5 GB: see
-    // docs/PERFORMANCE.md); the first 20 s (quick) or 60 s show the growth.
+    // Not the whole loop (about 15 minutes with its mapping on this machine; its figures
+    // are in docs/PERFORMANCE.md); the first 20 s (quick) or 60 s show the growth.
     let seconds = if quick { 20.0 } else { MEMORY_RUN_S };
     let mem = mapping_memory(3.0, 424, 240, seconds)?;
     Ok(vec![

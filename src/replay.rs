@@ -630,13 +630,15 @@ fn scenario_of_config(
 }
 
 /// The render geometry of a recorded vinebench scenario: its world generated again from
-/// the recorded seed and `[world]` (the same bits as the live run's), for map scoring.
-fn truth_renderer(
-    sc: &LoadedScenario,
-) -> Result<vinebench_sim::render::shade::Renderer, vinebench_sim::params::ParamError> {
+/// the recorded seed and `[world]` (the same bits as the live run's), with its
+/// `[world.mesh]` file if it has one, for map scoring.
+fn truth_renderer(sc: &LoadedScenario) -> Result<vinebench_sim::render::shade::Renderer, String> {
     let s = &sc.scenario;
-    let world = vinebench_sim::world::World::generate(s.seed, &s.world)?;
-    vinebench_sim::render::build_renderer(&world, &s.render)
+    let world =
+        vinebench_sim::world::World::generate(s.seed, &s.world).map_err(|e| e.to_string())?;
+    let mesh = crate::runner::load_world_mesh(sc).map_err(|e| e.to_string())?;
+    vinebench_sim::render::build_renderer_with_mesh(&world, &s.render, mesh.as_ref())
+        .map_err(|e| e.to_string())
 }
 
 fn safe_name(s: &str) -> String {

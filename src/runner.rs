@@ -381,6 +381,24 @@ pub struct Setup {
     pub tap: Option<std::sync::mpsc::Sender<vinebench_msgs::Message>>,
 }
 
+/// The scenario's `[world.mesh]` file (relative to the scenario file), read as the
+/// render geometry it stands for; `None` when `world.mesh.file` is empty.
+pub fn load_world_mesh(
+    sc: &LoadedScenario,
+) -> Result<Option<vinebench_sim::render::scene::WorldMesh>, ScenarioError> {
+    let file = &sc.scenario.world.mesh.file;
+    if file.is_empty() {
+        return Ok(None);
+    }
+    let mesh = crate::mapper::ply::read_mesh(&sc.base_dir.join(file))
+        .map_err(|e| sc.field_error("world.mesh.file", format!("a PLY triangle mesh: {e}")))?;
+    Ok(Some(vinebench_sim::render::scene::WorldMesh {
+        vertices: mesh.vertices.iter().map(|v| v.map(f64::from)).collect(),
+        colors: mesh.colors,
+        triangles: mesh.triangles,
+    }))
+}
+
 /// Builds the world, robot, route, motion model, sensors and estimators of a scenario;
 /// every parameter problem comes back located in the scenario file.
 pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
@@ -449,8 +467,9 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
     let renderer = if s.sensors.cameras.is_empty() {
         None
     } else {
+        let mesh = load_world_mesh(sc)?;
         let r = Arc::new(
-            vinebench_sim::render::build_renderer(&world, &s.render)
+            vinebench_sim::render::build_renderer_with_mesh(&world, &s.render, mesh.as_ref())
                 .map_err(|e| sc.param_error(e))?,
         );
         sensors.extend(

@@ -39,8 +39,26 @@ pub struct WorldParams {
     pub tags: Vec<TagParams>,
     /// `[[world.occluders]]`: plain featureless boxes.
     pub occluders: Vec<OccluderParams>,
+    /// `[world.mesh]`: a triangle mesh the cameras see instead of the generated geometry.
+    pub mesh: WorldMeshParams,
 }
 default_from_section!(WorldParams, "world");
+
+/// `[world.mesh]`: a reconstructed mesh (such as a run's `map/eif/mesh.ply`) as the world
+/// the cameras see and the maps are scored against. The vineyard is still generated from
+/// the seed for everything else (rows and route, terrain under the robot, GNSS), so the
+/// mesh must be in this world's coordinates: a map of the same seed, or a field map
+/// registered to it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorldMeshParams {
+    /// Binary or ASCII PLY with vertices (x y z, optional red green blue) and triangle
+    /// faces, world frame, m; relative to the scenario file. Empty: the generated vineyard.
+    pub file: String,
+    /// Also draw the generated ground under the mesh (a map has holes where nothing was
+    /// seen, and the cameras would see the sky through them).
+    pub keep_ground: bool,
+}
 
 /// `[world.canopy]`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -19,8 +19,18 @@
 //! ball of radius ρ can touch while pivoting about an edge lies within 2ρ of the edge's
 //! midpoint. The pivoting itself is sequential (each step depends on the front); the
 //! grids are built in parallel.
+//!
+//! A large map is meshed in square xy tiles ([`ball_pivoting_tiled`]), so memory follows
+//! the tile, not the map, and tiles run in parallel. Each tile meshes its points and
+//! those within a margin of [`TILE_MARGIN_RADII`] largest radii around it, and keeps the
+//! triangles whose centroid lies in the tile. Ball-Pivoting is local (a triangle exists
+//! where an empty ball touches its three points, and the front reaches it from either
+//! side), so two neighbouring tiles build the same triangles along their common side and
+//! the seam closes; where a noisy neighbourhood (foliage) makes the front's order matter,
+//! a seam may keep a few open or doubled edges.
 
 use super::grid::{PointGrid, dist2};
+use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 use std::collections::VecDeque;
 
@@ -367,13 +377,10 @@ pub fn ball_pivoting(
         stats: BpaStats::default(),
     };
     // The grids of all radii are independent: build them in parallel.
-    let grids: Vec<PointGrid> = {
-        use rayon::prelude::*;
-        radii
-            .par_iter()
-            .map(|r| PointGrid::new(&points[..n], 2.0 * r))
-            .collect()
-    };
+    let grids: Vec<PointGrid> = radii
+        .par_iter()
+        .map(|r| PointGrid::new(&points[..n], 2.0 * r))
+        .collect();
     let mut scratch = Vec::new();
     for (pass, (&rho, grid)) in radii.iter().zip(&grids).enumerate() {
         if pass > 0 {
@@ -395,6 +402,140 @@ pub fn ball_pivoting(
         .filter(|e| e.state != EdgeState::Inner)
         .count();
     (bpa.triangles, bpa.stats)
+}
+
+/// Margin around a tile, in units of the largest ball radius.
+pub const TILE_MARGIN_RADII: f64 = 5.0;
+
+/// [`ball_pivoting`] in square xy tiles of edge `tile_m` (see the [module docs](self)):
+/// the same triangles as one run over the whole cloud away from the tiles' sides, the
+/// tiles meshed in parallel, the result in tile order whatever the thread count. A cloud
+/// whose xy extent fits in one tile is meshed in one run, exactly as [`ball_pivoting`].
+/// Points and normals are `f32` (the mapper's cloud); each tile is converted to `f64`.
+pub fn ball_pivoting_tiled(
+    points: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    radii: &[f64],
+    tile_m: f64,
+) -> Vec<[u32; 3]> {
+    let n = points.len().min(normals.len());
+    let wide = |p: &[f32; 3]| p.map(f64::from);
+    let finite: Vec<u32> = (0..n as u32)
+        .filter(|&i| points[i as usize].iter().all(|c| c.is_finite()))
+        .collect();
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for &i in &finite {
+        let p = wide(&points[i as usize]);
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let run = |idx: &[u32]| {
+        let p: Vec<[f64; 3]> = idx.iter().map(|&i| wide(&points[i as usize])).collect();
+        let q: Vec<[f64; 3]> = idx.iter().map(|&i| wide(&normals[i as usize])).collect();
+        ball_pivoting(&p, &q, radii).0
+    };
+    let tile_m = if tile_m > 0.0 { tile_m } else { f64::INFINITY };
+    let count = |k: usize| ((hi[k] - lo[k]) / tile_m).floor().max(0.0) as usize + 1;
+    if finite.is_empty() || (count(0) == 1 && count(1) == 1) {
+        let tris = run(&finite);
+        return tris
+            .into_iter()
+            .map(|t| t.map(|i| finite[i as usize]))
+            .collect();
+    }
+    let (nx, ny) = (count(0), count(1));
+    let tile_of = |p: &[f64; 3]| {
+        let t =
+            |k: usize, m: usize| (((p[k] - lo[k]) / tile_m).floor().max(0.0) as usize).min(m - 1);
+        (t(0, nx), t(1, ny))
+    };
+    // Points bucketed by tile (ascending index within a tile).
+    let mut start = vec![0u32; nx * ny + 1];
+    for &i in &finite {
+        let (tx, ty) = tile_of(&wide(&points[i as usize]));
+        start[ty * nx + tx + 1] += 1;
+    }
+    for t in 0..nx * ny {
+        start[t + 1] += start[t];
+    }
+    let mut fill = start.clone();
+    let mut bucketed = vec![0u32; finite.len()];
+    for &i in &finite {
+        let (tx, ty) = tile_of(&wide(&points[i as usize]));
+        let slot = &mut fill[ty * nx + tx];
+        bucketed[*slot as usize] = i;
+        *slot += 1;
+    }
+    let margin = TILE_MARGIN_RADII * radii.iter().copied().fold(0.0, f64::max);
+    let reach = (margin / tile_m).ceil() as usize;
+    let occupied: Vec<usize> = (0..nx * ny).filter(|&t| start[t + 1] > start[t]).collect();
+    let tiles: Vec<Vec<[u32; 3]>> = occupied
+        .par_iter()
+        .map(|&t| {
+            let (tx, ty) = (t % nx, t / nx);
+            let (x0, y0) = (
+                lo[0] + tx as f64 * tile_m - margin,
+                lo[1] + ty as f64 * tile_m - margin,
+            );
+            let (x1, y1) = (x0 + tile_m + 2.0 * margin, y0 + tile_m + 2.0 * margin);
+            let mut idx = Vec::new();
+            for uy in ty.saturating_sub(reach)..(ty + reach + 1).min(ny) {
+                for ux in tx.saturating_sub(reach)..(tx + reach + 1).min(nx) {
+                    let u = uy * nx + ux;
+                    idx.extend(
+                        bucketed[start[u] as usize..start[u + 1] as usize]
+                            .iter()
+                            .copied()
+                            .filter(|&i| {
+                                let p = wide(&points[i as usize]);
+                                p[0] >= x0 && p[0] < x1 && p[1] >= y0 && p[1] < y1
+                            }),
+                    );
+                }
+            }
+            // Global index order: the seeds are tried in the same order in every tile.
+            idx.sort_unstable();
+            run(&idx)
+                .into_iter()
+                .map(|tri| tri.map(|i| idx[i as usize]))
+                .filter(|tri| {
+                    let c = [0, 1, 2].map(|k| {
+                        tri.iter()
+                            .map(|&i| f64::from(points[i as usize][k]))
+                            .sum::<f64>()
+                            / 3.0
+                    });
+                    tile_of(&c) == (tx, ty)
+                })
+                .collect()
+        })
+        .collect();
+    // Each tile's list is freed as it is copied.
+    let mut out = Vec::with_capacity(tiles.iter().map(Vec::len).sum());
+    for t in tiles {
+        out.extend(t);
+    }
+    out
+}
+
+/// Edges of `triangles` that belong to exactly one of them (the mesh's boundary).
+pub fn boundary_edges(triangles: &[[u32; 3]]) -> usize {
+    let mut edges: Vec<u64> = triangles
+        .iter()
+        .flat_map(|t| {
+            (0..3).map(move |k| {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                (u64::from(a.min(b)) << 32) | u64::from(a.max(b))
+            })
+        })
+        .collect();
+    edges.par_sort_unstable();
+    edges
+        .chunk_by(|a, b| a == b)
+        .filter(|run| run.len() == 1)
+        .count()
 }
 
 #[cfg(test)]

@@ -37,7 +37,9 @@
 //!    [`MapperParams::normal_neighbours`] nearest neighbours (PCA, kiddo k-d tree),
 //!    oriented towards the camera centre that last saw each voxel.
 //! 5. **Meshing** (section 5): Poisson-disk subsampling ([`poisson`]), Ball-Pivoting with
-//!    a list of radii ([`bpa`]), vertex colours from the cloud.
+//!    a list of radii ([`bpa`]) in square xy tiles of [`MapperParams::mesh_tile_m`] meshed
+//!    in parallel ([`bpa::ball_pivoting_tiled`]), vertex colours from the cloud. The mesh
+//!    can be loaded back as the world the simulator's cameras see (`[world.mesh]`).
 //! 6. **Export** ([`Map::export`]): `map.ply` (binary: x y z, colour, normals, GRVI,
 //!    elevation), `map_grvi.ply` and `map_elevation.ply` (the same points coloured as the
 //!    paper's Figure 15 b and c), `mesh.ply`, `mesh.obj`, a Gazebo model folder and an
@@ -110,6 +112,8 @@ pub struct MapperParams {
     pub poisson_radius_m: f64,
     /// Ball-Pivoting radii, m, ascending.
     pub ball_radii_m: Vec<f64>,
+    /// Edge of the square xy tiles the mesh is built in, m ([`bpa::ball_pivoting_tiled`]).
+    pub mesh_tile_m: f64,
     /// Incomplete stamps (colour, depth or calibration missing) kept per camera.
     pub max_pending_frames: usize,
     /// A complete frame that the trajectory has not reached while frames this much newer
@@ -188,6 +192,13 @@ impl MapperParams {
                 "poisson_radius_m",
                 "positive and finite",
                 self.poisson_radius_m.to_string(),
+            );
+        }
+        if !(self.mesh_tile_m >= 0.1 && self.mesh_tile_m.is_finite()) {
+            return bad(
+                "mesh_tile_m",
+                "finite, at least 0.1 m",
+                self.mesh_tile_m.to_string(),
             );
         }
         if self.ball_radii_m.is_empty()
@@ -713,20 +724,21 @@ impl Mapper {
         let grvi: Vec<f32> = colors.iter().map(|c| grvi_of(*c)).collect();
         let elevation = elevation(&positions, params.ground_cell_m, params.ground_percentile);
         let normals = normals::estimate_normals(&positions, &viewpoints, params.normal_neighbours);
+        voxel::release_freed_memory();
         stats.voxels = positions.len() as u64;
         stats.vegetation_points = grvi
             .iter()
             .filter(|g| f64::from(**g) > params.grvi_threshold)
             .count() as u64;
         let cloud = PointCloud {
-            positions: positions.iter().map(|p| p.map(|c| c as f32)).collect(),
+            positions,
             colors,
             normals,
             grvi,
             elevation,
         };
         let mesh = if params.mesh {
-            let (mesh, samples, boundary) = mesh_cloud(&positions, &cloud, &params);
+            let (mesh, samples, boundary) = mesh_cloud(&cloud, &params);
             stats.mesh_samples = samples as u64;
             stats.mesh_triangles = mesh.triangles.len() as u64;
             stats.mesh_boundary_edges = boundary as u64;
@@ -750,17 +762,18 @@ pub fn grvi_of(c: [u8; 3]) -> f32 {
     if r + g > 0.0 { (g - r) / (g + r) } else { 0.0 }
 }
 
-/// Height of each point above the local ground (see the [module docs](self)).
-pub fn elevation(points: &[[f64; 3]], cell_m: f64, percentile: f64) -> Vec<f32> {
-    let cell = |p: &[f64; 3]| {
+/// Height of each point (`f64` or `f32`) above the local ground (see the
+/// [module docs](self)).
+pub fn elevation<T: Copy + Into<f64>>(points: &[[T; 3]], cell_m: f64, percentile: f64) -> Vec<f32> {
+    let cell = |p: &[T; 3]| {
         (
-            (p[0] / cell_m).floor() as i64,
-            (p[1] / cell_m).floor() as i64,
+            (p[0].into() / cell_m).floor() as i64,
+            (p[1].into() / cell_m).floor() as i64,
         )
     };
     let mut zs: BTreeMap<(i64, i64), Vec<f64>> = BTreeMap::new();
     for p in points {
-        zs.entry(cell(p)).or_default().push(p[2]);
+        zs.entry(cell(p)).or_default().push(p[2].into());
     }
     let quantile: BTreeMap<(i64, i64), f64> = zs
         .into_iter()
@@ -783,43 +796,53 @@ pub fn elevation(points: &[[f64; 3]], cell_m: f64, percentile: f64) -> Vec<f32> 
     };
     points
         .iter()
-        .map(|p| (p[2] - ground(cell(p))) as f32)
+        .map(|p| (p[2].into() - ground(cell(p))) as f32)
         .collect()
 }
 
-/// Poisson-disk subsample, Ball-Pivoting, vertex colours and normals from the cloud;
-/// unreferenced samples are left out of the mesh. Returns the mesh, the sample count and
-/// the boundary edge count.
-fn mesh_cloud(
-    positions: &[[f64; 3]],
-    cloud: &PointCloud,
-    params: &MapperParams,
-) -> (TriangleMesh, usize, usize) {
-    let keep = poisson::poisson_disk(positions, params.poisson_radius_m);
-    let pts: Vec<[f64; 3]> = keep.iter().map(|&i| positions[i as usize]).collect();
-    let nrm: Vec<[f64; 3]> = keep
-        .iter()
-        .map(|&i| cloud.normals[i as usize].map(f64::from))
-        .collect();
-    let (tris, stats) = bpa::ball_pivoting(&pts, &nrm, &params.ball_radii_m);
+/// Poisson-disk subsample, Ball-Pivoting in tiles, vertex colours and normals from the
+/// cloud; unreferenced samples are left out of the mesh. Returns the mesh, the sample
+/// count and the boundary edge count.
+fn mesh_cloud(cloud: &PointCloud, params: &MapperParams) -> (TriangleMesh, usize, usize) {
+    let keep = poisson::poisson_disk(&cloud.positions, params.poisson_radius_m);
+    let pts: Vec<[f32; 3]> = keep.iter().map(|&i| cloud.positions[i as usize]).collect();
+    let nrm: Vec<[f32; 3]> = keep.iter().map(|&i| cloud.normals[i as usize]).collect();
+    let mut triangles =
+        bpa::ball_pivoting_tiled(&pts, &nrm, &params.ball_radii_m, params.mesh_tile_m);
+    drop((pts, nrm));
+    // Vertices in the order the triangles first use them, indices rewritten in place.
     let mut remap = vec![u32::MAX; keep.len()];
-    let mut mesh = TriangleMesh::default();
-    let mut triangles = Vec::with_capacity(tris.len());
-    for t in tris {
-        triangles.push(t.map(|i| {
+    let mut used = 0u32;
+    for t in &mut triangles {
+        *t = t.map(|i| {
             let slot = &mut remap[i as usize];
             if *slot == u32::MAX {
-                *slot = mesh.vertices.len() as u32;
-                let src = keep[i as usize] as usize;
-                mesh.vertices.push(cloud.positions[src]);
-                mesh.normals.push(cloud.normals[src]);
-                mesh.colors.push(cloud.colors[src]);
+                *slot = used;
+                used += 1;
             }
             *slot
-        }));
+        });
     }
-    mesh.triangles = triangles;
-    (mesh, keep.len(), stats.boundary_edges)
+    let mut mesh = TriangleMesh {
+        vertices: vec![[0.0; 3]; used as usize],
+        normals: vec![[0.0; 3]; used as usize],
+        colors: vec![[0; 3]; used as usize],
+        triangles,
+    };
+    for (&slot, &src) in remap.iter().zip(&keep) {
+        if slot != u32::MAX {
+            let (slot, src) = (slot as usize, src as usize);
+            mesh.vertices[slot] = cloud.positions[src];
+            mesh.normals[slot] = cloud.normals[src];
+            mesh.colors[slot] = cloud.colors[src];
+        }
+    }
+    let samples = keep.len();
+    drop((remap, keep));
+    voxel::release_freed_memory();
+    let boundary = bpa::boundary_edges(&mesh.triangles);
+    voxel::release_freed_memory();
+    (mesh, samples, boundary)
 }
 
 /// The finished map.

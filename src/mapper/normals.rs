@@ -10,17 +10,24 @@ use std::num::NonZero;
 /// of each point's `k` nearest neighbours (the point included), flipped to face its
 /// `viewpoint` (the camera centre that saw it). Where the neighbourhood is degenerate
 /// (fewer than 3 points) the normal is the unit vector towards the viewpoint.
-pub fn estimate_normals(points: &[[f64; 3]], viewpoints: &[[f32; 3]], k: usize) -> Vec<[f32; 3]> {
+///
+/// The k-d tree holds the `f32` points as they are (the neighbour search only compares
+/// distances); the covariance is accumulated in `f64` about the neighbourhood's mean.
+pub fn estimate_normals(points: &[[f32; 3]], viewpoints: &[[f32; 3]], k: usize) -> Vec<[f32; 3]> {
     if points.is_empty() {
         return Vec::new();
     }
-    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(points);
+    let tree: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(points);
+    let at = |i: u64| {
+        let p = points[i as usize];
+        Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
+    };
     let k = NonZero::new(k.max(3)).unwrap_or(NonZero::<usize>::MIN);
     points
         .par_iter()
         .zip(viewpoints.par_iter())
         .map(|(p, vp)| {
-            let pv = Vector3::from(*p);
+            let pv = Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
             let to_view = Vector3::new(f64::from(vp[0]), f64::from(vp[1]), f64::from(vp[2])) - pv;
             let nn = tree.nearest_n::<SquaredEuclidean>(p, k);
             let fallback = to_view.try_normalize(1e-12).unwrap_or_else(Vector3::z);
@@ -29,12 +36,12 @@ pub fn estimate_normals(points: &[[f64; 3]], viewpoints: &[[f32; 3]], k: usize) 
             } else {
                 let mut mean = Vector3::zeros();
                 for q in &nn {
-                    mean += Vector3::from(points[q.item as usize]);
+                    mean += at(q.item);
                 }
                 mean /= nn.len() as f64;
                 let mut cov = Matrix3::zeros();
                 for q in &nn {
-                    let d = Vector3::from(points[q.item as usize]) - mean;
+                    let d = at(q.item) - mean;
                     cov += d * d.transpose();
                 }
                 let eig = SymmetricEigen::new(cov);
@@ -63,9 +70,9 @@ mod tests {
     #[test]
     fn normals_of_a_tilted_plane_face_the_viewpoint() {
         // Plane z = 0.5·x, seen from above.
-        let pts: Vec<[f64; 3]> = (0..400)
+        let pts: Vec<[f32; 3]> = (0..400u16)
             .map(|i| {
-                let (x, y) = (f64::from(i % 20) * 0.01, f64::from(i / 20) * 0.01);
+                let (x, y) = (f32::from(i % 20) * 0.01, f32::from(i / 20) * 0.01);
                 [x, y, 0.5 * x]
             })
             .collect();

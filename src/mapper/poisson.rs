@@ -8,19 +8,24 @@ use super::grid::dist2;
 use super::voxel::VoxelGrid;
 use rustc_hash::FxHashMap;
 
-/// Indices (ascending) of a Poisson-disk subset of `points` with minimum distance
-/// `radius_m` (> 0). Non-finite points are dropped.
+/// Indices (ascending) of a Poisson-disk subset of `points` (`f64` or `f32`) with
+/// minimum distance `radius_m` (> 0). Non-finite points are dropped.
 ///
 /// Points are visited in input order (the mapper's voxels come sorted by key, so
 /// neighbours are visited together and the cells stay in cache). Kept points go into a
 /// hash grid of cell `2·radius`: the ball of radius `radius` around a point lies in the
 /// 2 × 2 × 2 block of cells nearest to it, so 8 look-ups decide each point.
-pub fn poisson_disk(points: &[[f64; 3]], radius_m: f64) -> Vec<u32> {
+pub fn poisson_disk<T: Copy + Into<f64>>(points: &[[T; 3]], radius_m: f64) -> Vec<u32> {
     let cell_m = 2.0 * radius_m;
     let r2 = radius_m * radius_m;
-    let mut cells: FxHashMap<u64, Vec<u32>> = FxHashMap::default();
-    let mut kept = Vec::new();
-    'points: for (i, p) in points.iter().enumerate() {
+    let at = |i: u32| points[i as usize].map(Into::into);
+    // Cell → the last kept point in it; `next[k]`: the kept point before `k` in its cell
+    // (a list per cell without an allocation per cell).
+    let mut last: FxHashMap<u64, u32> = FxHashMap::default();
+    let mut next: Vec<u32> = Vec::new();
+    let mut kept: Vec<u32> = Vec::new();
+    'points: for i in 0..points.len() as u32 {
+        let p = &at(i);
         // Cell index and, per axis, the neighbour on the side of the point's nearer face.
         let mut c = [0i64; 3];
         let mut side = [0i64; 3];
@@ -35,17 +40,23 @@ pub fn poisson_disk(points: &[[f64; 3]], radius_m: f64) -> Vec<u32> {
         }
         for mask in 0..8u8 {
             let idx = [0, 1, 2].map(|k| c[k] + if mask & (1 << k) != 0 { side[k] } else { 0 });
-            if let Some(list) = cells.get(&VoxelGrid::key_of_index(idx))
-                && list.iter().any(|&q| dist2(&points[q as usize], p) < r2)
-            {
-                continue 'points;
+            let mut k = last
+                .get(&VoxelGrid::key_of_index(idx))
+                .copied()
+                .unwrap_or(u32::MAX);
+            while k != u32::MAX {
+                if dist2(&at(kept[k as usize]), p) < r2 {
+                    continue 'points;
+                }
+                k = next[k as usize];
             }
         }
-        cells
-            .entry(VoxelGrid::key_of_index(c))
-            .or_default()
-            .push(i as u32);
-        kept.push(i as u32);
+        let k = kept.len() as u32;
+        next.push(
+            last.insert(VoxelGrid::key_of_index(c), k)
+                .unwrap_or(u32::MAX),
+        );
+        kept.push(i);
     }
     kept
 }

@@ -117,14 +117,30 @@ pub fn build_renderer(
     world: &crate::world::World,
     p: &crate::params::RenderParams,
 ) -> Result<shade::Renderer, crate::params::ParamError> {
+    build_renderer_with_mesh(world, p, None)
+}
+
+/// [`build_renderer`] with `mesh` (the loaded `[world.mesh]` file) in place of the
+/// generated geometry ([`scene::build_with_mesh`]; `world.params.mesh.keep_ground` says
+/// whether the generated ground stays).
+pub fn build_renderer_with_mesh(
+    world: &crate::world::World,
+    p: &crate::params::RenderParams,
+    mesh: Option<&scene::WorldMesh>,
+) -> Result<shade::Renderer, crate::params::ParamError> {
     use crate::params::{ParamError, RenderBackend};
     validate(p)?;
-    let scene = scene::build(
-        world,
-        &scene::GeometryOptions {
-            terrain_cell_m: p.terrain_cell_m,
-        },
-    );
+    let opts = scene::GeometryOptions {
+        terrain_cell_m: p.terrain_cell_m,
+    };
+    let scene = match mesh {
+        Some(m) => {
+            m.validate()
+                .map_err(|e| ParamError::new("world.mesh.file", "a valid triangle mesh", e))?;
+            scene::build_with_mesh(world, &opts, m, world.params.mesh.keep_ground)
+        }
+        None => scene::build(world, &opts),
+    };
     let caster: Box<dyn RayCaster> = match p.backend {
         RenderBackend::Bvh => trace::build_default(&scene.trace),
         #[cfg(feature = "embree")]

@@ -50,6 +50,8 @@ pub enum Material {
     Tag,
     /// The back and edges of a tag board (plain white plastic).
     Board,
+    /// A loaded mesh (`[world.mesh]`): albedo from its vertex colours.
+    VertexColour,
 }
 
 /// What the shader needs of a mesh beyond what the ray caster sees.
@@ -61,6 +63,8 @@ pub struct ShadingMesh {
     pub uvs: Vec<[f32; 2]>,
     /// Material per triangle.
     pub materials: Vec<Material>,
+    /// Linear albedo per vertex, for [`Material::VertexColour`] (empty otherwise).
+    pub colors: Vec<[f32; 3]>,
 }
 
 /// The vineyard as the renderer sees it.
@@ -289,6 +293,153 @@ impl MeshBuilder {
     }
 }
 
+/// A triangle mesh drawn instead of the generated vineyard (`[world.mesh]`), world
+/// frame.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct WorldMesh {
+    /// Vertex positions, world frame, m.
+    pub vertices: Vec<[f64; 3]>,
+    /// sRGB vertex colours (empty: light grey).
+    pub colors: Vec<[u8; 3]>,
+    /// Counter-clockwise triangles (seen from the front; both sides are drawn).
+    pub triangles: Vec<[u32; 3]>,
+}
+
+impl WorldMesh {
+    /// Checks indices and values; the first problem, in words.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.triangles.is_empty() {
+            return Err("no triangles".into());
+        }
+        if !self.colors.is_empty() && self.colors.len() != self.vertices.len() {
+            return Err(format!(
+                "{} colours for {} vertices",
+                self.colors.len(),
+                self.vertices.len()
+            ));
+        }
+        if let Some(i) = self
+            .vertices
+            .iter()
+            .position(|v| !v.iter().all(|c| c.is_finite()))
+        {
+            return Err(format!("vertex {i} is not finite: {:?}", self.vertices[i]));
+        }
+        let n = self.vertices.len();
+        if let Some((k, t)) = self
+            .triangles
+            .iter()
+            .enumerate()
+            .find(|(_, t)| t.iter().any(|&i| i as usize >= n))
+        {
+            return Err(format!("triangle {k} {t:?} refers past the {n} vertices"));
+        }
+        Ok(())
+    }
+}
+
+/// The render geometry of `world` with `mesh` in place of its vines, posts, wires, tags
+/// and occluders (and of its ground unless `keep_ground`): one instance of the mesh in
+/// the world's scene frame, vertex normals area-weighted from the triangles, shading from
+/// the vertex colours. `mesh` must pass [`WorldMesh::validate`].
+pub fn build_with_mesh(
+    world: &World,
+    opts: &GeometryOptions,
+    mesh: &WorldMesh,
+    keep_ground: bool,
+) -> RenderScene {
+    let origin = scene_origin(world);
+    let to_scene = |p: Vector3<f64>| p - origin;
+    let mut meshes = Vec::new();
+    let mut shading = Vec::new();
+    if keep_ground {
+        let (g, s) = terrain_mesh(world, opts.terrain_cell_m, &to_scene).finish();
+        meshes.push(g);
+        shading.push(s);
+    }
+    let positions: Vec<[f32; 3]> = mesh
+        .vertices
+        .iter()
+        .map(|p| {
+            let q = to_scene(Vector3::from(*p));
+            [q.x as f32, q.y as f32, q.z as f32]
+        })
+        .collect();
+    let mut normals = vec![Vector3::<f64>::zeros(); positions.len()];
+    for t in &mesh.triangles {
+        let [a, b, c] = t.map(|i| Vector3::from(mesh.vertices[i as usize]));
+        // Cross product: area-weighted.
+        let n = (b - a).cross(&(c - a));
+        for &i in t {
+            normals[i as usize] += n;
+        }
+    }
+    let mut lo = Vector3::repeat(f64::INFINITY);
+    let mut hi = Vector3::repeat(f64::NEG_INFINITY);
+    for p in &positions {
+        let v = Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+        lo = lo.inf(&v);
+        hi = hi.sup(&v);
+    }
+    meshes.push(MeshGeometry {
+        positions,
+        indices: mesh.triangles.clone(),
+    });
+    shading.push(ShadingMesh {
+        normals: normals
+            .iter()
+            .map(|n| {
+                let n = n.try_normalize(1e-30).unwrap_or_else(Vector3::z);
+                [n.x as f32, n.y as f32, n.z as f32]
+            })
+            .collect(),
+        uvs: vec![[0.0; 2]; mesh.vertices.len()],
+        materials: vec![Material::VertexColour; mesh.triangles.len()],
+        colors: if mesh.colors.is_empty() {
+            vec![[0.5; 3]; mesh.vertices.len()]
+        } else {
+            mesh.colors
+                .iter()
+                .map(|c| c.map(super::texture::decode_srgb))
+                .collect()
+        },
+    });
+    let instances: Vec<Instance> = (0..meshes.len() as u32)
+        .map(|mesh| Instance {
+            mesh,
+            scene_from_mesh: Affine3::IDENTITY,
+        })
+        .collect();
+    let f3 = |v: Vector3<f64>| [v.x as f32, v.y as f32, v.z as f32];
+    RenderScene {
+        normal_from_mesh: vec![
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+            instances.len()
+        ],
+        instance_tag: vec![u32::MAX; instances.len()],
+        trace: TraceScene {
+            origin_in_world: origin,
+            meshes,
+            instances,
+        },
+        shading,
+        tag_ids: Vec::new(),
+        caster_bounds: (f3(lo), f3(hi)),
+        grape: world.params.canopy.grape_colour,
+    }
+}
+
+/// The scene frame's origin: the centre of the terrain, on the ground.
+fn scene_origin(world: &World) -> Vector3<f64> {
+    let (lo, hi) = world.terrain.domain();
+    let centre = (lo + hi) * 0.5;
+    Vector3::new(
+        centre.x,
+        centre.y,
+        world.terrain.height_at(centre.x, centre.y),
+    )
+}
+
 /// `[render]` values the geometry depends on.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GeometryOptions {
@@ -300,13 +451,7 @@ pub struct GeometryOptions {
 /// streams `render.canopy.<k>`, each vine's trunk shape and prototype from its
 /// appearance seed.
 pub fn build(world: &World, opts: &GeometryOptions) -> RenderScene {
-    let (lo, hi) = world.terrain.domain();
-    let centre = (lo + hi) * 0.5;
-    let origin = Vector3::new(
-        centre.x,
-        centre.y,
-        world.terrain.height_at(centre.x, centre.y),
-    );
+    let origin = scene_origin(world);
     let to_scene = |p: Vector3<f64>| p - origin;
 
     let mut meshes = Vec::new();

@@ -455,6 +455,11 @@ impl Renderer {
                 [a, a, a]
             }
             Material::Board => [0.8, 0.8, 0.8],
+            Material::VertexColour => {
+                let c = |k: usize| sh.colors.get(tri[k] as usize).copied().unwrap_or([0.5; 3]);
+                let (c0, c1, c2) = (c(0), c(1), c(2));
+                std::array::from_fn(|i| w * c0[i] + u * c1[i] + v * c2[i])
+            }
         };
         let s = self.to_sun_scene;
         let ns = dot(n, s);

@@ -32,6 +32,7 @@ fn plane_scene(h: f32, z: f32, material: Material) -> RenderScene {
         normals: vec![[0.0, 0.0, 1.0]; 4],
         uvs: vec![[-s, -s], [s, -s], [s, s], [-s, s]],
         materials: vec![material; 2],
+        colors: Vec::new(),
     };
     RenderScene {
         trace: TraceScene {
@@ -525,4 +526,88 @@ fn motion_blur_matches_the_average_of_renders_over_the_exposure() {
         exposure_s,
     );
     assert!(err(&wrong.linear) > 2.0 * e_blur);
+}
+
+/// `[world.mesh]`: the generated vineyard flattened into one world-frame triangle mesh
+/// (every instance's triangles placed by its transform) and drawn as a loaded mesh gives
+/// the depth image of the generated scene itself; its vertex colours are its albedo.
+#[test]
+fn a_loaded_world_mesh_renders_as_the_geometry_it_was_taken_from() {
+    let world = small_world(vec![]);
+    let generated = world_renderer(&world);
+    let trace = &generated.scene().trace;
+    let mut mesh = scene::WorldMesh::default();
+    for inst in &trace.instances {
+        let m = &trace.meshes[inst.mesh as usize];
+        let first = mesh.vertices.len() as u32;
+        for p in &m.positions {
+            let a = &inst.scene_from_mesh.rows;
+            let q: [f64; 3] = std::array::from_fn(|i| {
+                f64::from(a[i][0] * p[0] + a[i][1] * p[1] + a[i][2] * p[2] + a[i][3])
+            });
+            mesh.vertices
+                .push([0, 1, 2].map(|i| q[i] + trace.origin_in_world[i]));
+        }
+        mesh.triangles
+            .extend(m.indices.iter().map(|t| t.map(|i| i + first)));
+    }
+    // A red vertex colour on everything.
+    mesh.colors = vec![[200, 30, 30]; mesh.vertices.len()];
+    let mut p = world.params.clone();
+    p.mesh.keep_ground = false;
+    let mesh_world = World {
+        params: p,
+        ..world.clone()
+    };
+    let loaded =
+        super::build_renderer_with_mesh(&mesh_world, &RenderParams::default(), Some(&mesh))
+            .expect("a valid mesh");
+    assert_eq!(
+        loaded.scene().trace.instances.len(),
+        1,
+        "one mesh, no ground"
+    );
+    let intr = Intrinsics::from_hfov(320, 240, 87.0, Default::default());
+    for pose in [
+        look_at(Vector3::new(1.0, 1.25, 1.0), Vector3::new(1.0, 0.0, -0.25)),
+        look_at(Vector3::new(6.0, 1.25, 1.2), Vector3::new(0.2, 1.0, -0.1)),
+    ] {
+        let a = render(&generated, &intr, &pose);
+        let b = render(&loaded, &intr, &pose);
+        let same = a
+            .depth_m
+            .iter()
+            .zip(&b.depth_m)
+            .filter(|(x, y)| (*x - *y).abs() <= 1e-3)
+            .count();
+        let frac = same as f64 / a.depth_m.len() as f64;
+        assert!(frac >= 0.999, "{:.4} % of depths within 1 mm", 100.0 * frac);
+        let hit: Vec<&[f32]> = b
+            .linear
+            .chunks_exact(3)
+            .zip(&b.depth_m)
+            .filter(|(_, d)| **d > 0.0)
+            .map(|(c, _)| c)
+            .collect();
+        assert!(hit.len() > 1000);
+        let red = hit
+            .iter()
+            .filter(|c| c[0] > 3.0 * c[1] && c[0] > 3.0 * c[2])
+            .count();
+        assert!(
+            red * 100 >= hit.len() * 99,
+            "{red} of {} hit pixels red",
+            hit.len()
+        );
+    }
+    let bad = scene::WorldMesh {
+        triangles: vec![[0, 1, 7]],
+        vertices: vec![[0.0; 3]; 3],
+        colors: Vec::new(),
+    };
+    let e = super::build_renderer_with_mesh(&mesh_world, &RenderParams::default(), Some(&bad))
+        .map(|_| ())
+        .expect_err("an index past the vertices");
+    assert_eq!(e.path, "world.mesh.file");
+    assert!(e.to_string().contains("triangle 0"), "{e}");
 }

@@ -529,6 +529,8 @@ pub fn digest(world: &World) -> String {
         canopy,
         tags,
         occluders,
+        // Not generated: the runner loads the file into the render geometry.
+        mesh: _,
     } = &world.params;
     let CanopyParams {
         growth_stage,
