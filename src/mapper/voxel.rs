@@ -61,7 +61,7 @@ pub struct Voxel {
 /// The occupied voxels as arrays, sorted by key (see [`VoxelGrid::into_points`]).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct VoxelPoints {
-    /// Centroids of the voxels' points, world frame, m (`f32`: a 10 µm step at 100 m
+    /// Centroids of the voxels' points, world frame, m (`f32`: an 8 µm step at 100 m
     /// from the origin, a thousandth of a 1 cm voxel).
     pub centroids: Vec<[f32; 3]>,
     /// Mean sRGB colours, rounded.
