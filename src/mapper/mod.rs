@@ -375,7 +375,7 @@ pub struct MapperStats {
     pub mesh_samples: u64,
     /// Mesh triangles.
     pub mesh_triangles: u64,
-    /// Ball-Pivoting edges left on the boundary.
+    /// Mesh edges that belong to one triangle only (the mesh's boundary).
     pub mesh_boundary_edges: u64,
 }
 
