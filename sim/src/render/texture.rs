@@ -21,7 +21,8 @@
 //! returns **linear** reflectance in `0..=1`. Texel `(i, j)` has its centre at
 //! `u = (i + 0.5) / width`, `v = (j + 0.5) / height`; `u` runs right, `v` down, and
 //! sampling wraps (period 1 in `u` and `v`). A mip chain (box-filtered in linear space)
-//! is built at bake time for [`Texture::sample_lod`].
+//! is built at bake time for [`Texture::sample_lod`], with every level also decoded to
+//! linear reflectance (16 bytes a texel) for that hot path.
 //!
 //! # Mapping conventions (advisory, see [`TextureKind::period_m`])
 //!
@@ -525,7 +526,7 @@ impl LinearLevel {
         }
     }
 
-    /// [`bilinear_with`] on the decoded texels: the same lerps in the same order, four
+    /// [`bilinear`] on the decoded texels: the same lerps in the same order, four
     /// channels per operation, so the same bits.
     #[inline(always)]
     fn bilinear(&self, u: f32, v: f32) -> f32x4 {
@@ -566,8 +567,8 @@ fn wrap_coord(t: f32, n: usize) -> (usize, usize, f32) {
     (i0, i1, f)
 }
 
-#[inline(always)]
-fn decode_with(lut: &[f32; 256], t: [u8; 3]) -> Rgb {
+fn decode(t: [u8; 3]) -> Rgb {
+    let lut: &[f32; 256] = &SRGB_TO_LINEAR;
     [
         lut[usize::from(t[0])],
         lut[usize::from(t[1])],
@@ -575,29 +576,13 @@ fn decode_with(lut: &[f32; 256], t: [u8; 3]) -> Rgb {
     ]
 }
 
-fn decode(t: [u8; 3]) -> Rgb {
-    decode_with(&SRGB_TO_LINEAR, t)
-}
-
-#[inline(always)]
-fn bilinear_with(
-    lut: &[f32; 256],
-    width: usize,
-    height: usize,
-    texels: &[[u8; 3]],
-    u: f32,
-    v: f32,
-) -> Rgb {
+fn bilinear(width: usize, height: usize, texels: &[[u8; 3]], u: f32, v: f32) -> Rgb {
     let (x0, x1, fx) = wrap_coord(u, width);
     let (y0, y1, fy) = wrap_coord(v, height);
-    let t = |x: usize, y: usize| decode_with(lut, texels[y * width + x]);
+    let t = |x: usize, y: usize| decode(texels[y * width + x]);
     let top = mix(t(x0, y0), t(x1, y0), fx);
     let bottom = mix(t(x0, y1), t(x1, y1), fx);
     mix(top, bottom, fy)
-}
-
-fn bilinear(width: usize, height: usize, texels: &[[u8; 3]], u: f32, v: f32) -> Rgb {
-    bilinear_with(&SRGB_TO_LINEAR, width, height, texels, u, v)
 }
 
 impl Texture {
