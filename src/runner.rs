@@ -742,6 +742,34 @@ pub fn simulate(
     simulate_setup(sc, setup(sc)?, progress)
 }
 
+/// Delivers one message that has arrived: to the estimators, the mapper, the visual SLAM
+/// systems, the live tap and the recording, in that order. The recording is written in
+/// delivery order, so a replay restores it exactly.
+fn deliver(
+    tm: TimedMessage,
+    estimators: &mut EstimatorSet,
+    mapping: &mut Option<crate::mapping::MappingStage>,
+    slam: &mut [crate::slam::VisualSlam],
+    tap: Option<&std::sync::mpsc::Sender<vinebench_msgs::Message>>,
+    recorder: &mut Option<Recorder>,
+) -> Result<(), RunError> {
+    estimators.push(&tm);
+    if let Some(m) = mapping {
+        m.push(&tm.msg, estimators)?;
+    }
+    for v in slam {
+        v.push(&tm.msg)?;
+    }
+    if let Some(tx) = tap {
+        // A receiver gone only means nobody listens any more.
+        let _ = tx.send(tm.msg.clone());
+    }
+    if let Some(rec) = recorder {
+        rec.send(RecordItem::Message(tm));
+    }
+    Ok(())
+}
+
 /// Runs the simulation of a scenario that [`setup`] has already built.
 pub fn simulate_setup(
     sc: &LoadedScenario,
@@ -856,21 +884,14 @@ pub fn simulate_setup(
         }
         while pending.peek().is_some_and(|p| p.0.tm.arrival <= t) {
             if let Some(Reverse(p)) = pending.pop() {
-                estimators.push(&p.tm);
-                if let Some(m) = &mut mapping {
-                    m.push(&p.tm.msg, &estimators)?;
-                }
-                for v in &mut slam {
-                    v.push(&p.tm.msg)?;
-                }
-                if let Some(tx) = &tap {
-                    // A receiver gone only means nobody listens any more.
-                    let _ = tx.send(p.tm.msg.clone());
-                }
-                // Written in delivery order: a replay restores it exactly.
-                if let Some(rec) = &mut recorder {
-                    rec.send(RecordItem::Message(p.tm));
-                }
+                deliver(
+                    p.tm,
+                    &mut estimators,
+                    &mut mapping,
+                    &mut slam,
+                    tap.as_ref(),
+                    &mut recorder,
+                )?;
             }
         }
         if let Some(pb) = progress {
@@ -883,19 +904,14 @@ pub fn simulate_setup(
     }
     // Deliver what is still in flight, in arrival order.
     while let Some(Reverse(p)) = pending.pop() {
-        estimators.push(&p.tm);
-        if let Some(m) = &mut mapping {
-            m.push(&p.tm.msg, &estimators)?;
-        }
-        for v in &mut slam {
-            v.push(&p.tm.msg)?;
-        }
-        if let Some(tx) = &tap {
-            let _ = tx.send(p.tm.msg.clone());
-        }
-        if let Some(rec) = &mut recorder {
-            rec.send(RecordItem::Message(p.tm));
-        }
+        deliver(
+            p.tm,
+            &mut estimators,
+            &mut mapping,
+            &mut slam,
+            tap.as_ref(),
+            &mut recorder,
+        )?;
     }
     let out = estimators.finish();
     let (mut estimates, stage) = (out.estimators, out.stage);
