@@ -2,7 +2,7 @@
 
 use super::camera::{CameraSpec, DepthScratch, Intrinsics, StereoDepthNoise, look_at};
 use super::scene::{self, Material, RenderScene, ShadingMesh};
-use super::shade::{Frame, Lighting, Renderer};
+use super::shade::{Frame, Lighting, Renderer, ShadowMap};
 use super::texture::grvi;
 use super::{Affine3, Instance, MeshGeometry, TraceScene, trace};
 use crate::params::{RenderParams, RowPlacement, TagParams, WorldParams};
@@ -327,6 +327,67 @@ fn stereo_disparity_of_a_textured_plane_gives_its_depth() {
         (median - z).abs() < 0.02 * z,
         "median stereo depth {median} m (disparity {expected} px)"
     );
+}
+
+/// A 2 × 2 m roof 1 m above 8 × 8 m of ground, sun from the south-east at 50°: ground
+/// points whose sun ray passes through the roof (closed form: the ray reaches z = 1 at
+/// `p + s / s_z`) are in shadow, the others and the roof itself are lit. The map's 7 cm
+/// cells do not divide the extent, so its blocks have padded edges.
+#[test]
+fn the_shadow_map_darkens_exactly_the_ground_under_the_roof() {
+    let ground = plane_scene(4.0, 0.0, Material::Soil);
+    let roof = MeshGeometry {
+        positions: vec![
+            [-1.0, -1.0, 1.0],
+            [1.0, -1.0, 1.0],
+            [1.0, 1.0, 1.0],
+            [-1.0, 1.0, 1.0],
+        ],
+        indices: vec![[0, 1, 2], [0, 2, 3]],
+    };
+    let mut sc = ground;
+    sc.trace.meshes.push(roof);
+    sc.trace.instances.push(Instance {
+        mesh: 1,
+        scene_from_mesh: Affine3::IDENTITY,
+    });
+    sc.shading.push(sc.shading[0].clone());
+    sc.normal_from_mesh.push(sc.normal_from_mesh[0]);
+    sc.instance_tag.push(u32::MAX);
+    sc.caster_bounds = ([-4.0, -4.0, -0.1], [4.0, 4.0, 1.1]);
+    let caster = trace::build_default(&sc.trace);
+    let to_sun = Lighting::sun_direction(135.0, 50.0);
+    let cell = 0.07;
+    let map = ShadowMap::bake(&sc, caster.as_ref(), to_sun, cell);
+    let s = to_sun.normalize();
+    let bias = (0.03 + 2.0 * cell) as f32;
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let (mut shadowed, mut lit) = (0, 0);
+    for _ in 0..4000 {
+        use rand::Rng;
+        let (x, y) = (rng.random_range(-3.5..3.5), rng.random_range(-3.5..3.5));
+        let at_roof = Vector3::new(x, y, 0.0) + s / s.z;
+        // Distance of the sun ray's crossing of z = 1 from the roof's edge.
+        let inside = (1.0 - at_roof.x.abs()).min(1.0 - at_roof.y.abs());
+        if inside.abs() < 3.0 * cell {
+            continue; // penumbra of the 2 × 2 filter
+        }
+        let v = map.visibility([x as f32, y as f32, 0.0], bias);
+        if inside > 0.0 {
+            assert_eq!(v, 0.0, "({x:.3}, {y:.3}) is under the roof");
+            shadowed += 1;
+        } else {
+            assert_eq!(v, 1.0, "({x:.3}, {y:.3}) sees the sun");
+            lit += 1;
+        }
+    }
+    assert!(
+        shadowed > 150 && lit > 2000,
+        "{shadowed} shadowed, {lit} lit"
+    );
+    for (x, y) in [(0.0, 0.0), (0.9, -0.9), (-0.5, 0.7)] {
+        assert_eq!(map.visibility([x, y, 1.0], bias), 1.0, "roof ({x}, {y})");
+    }
 }
 
 #[test]
