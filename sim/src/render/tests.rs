@@ -331,8 +331,8 @@ fn stereo_disparity_of_a_textured_plane_gives_its_depth() {
 
 /// A 2 × 2 m roof 1 m above 8 × 8 m of ground, sun from the south-east at 50°: ground
 /// points whose sun ray passes through the roof (closed form: the ray reaches z = 1 at
-/// `p + s / s_z`) are in shadow, the others and the roof itself are lit. The map's 7 cm
-/// cells do not divide the extent, so its blocks have padded edges.
+/// `p + s / s_z`) are in shadow, the others and the roof itself are lit. Points within
+/// three 7 cm cells of the shadow's edge (the 2 × 2 filter's penumbra) are skipped.
 #[test]
 fn the_shadow_map_darkens_exactly_the_ground_under_the_roof() {
     let ground = plane_scene(4.0, 0.0, Material::Soil);
