@@ -410,6 +410,14 @@ fn render_scene_of_a_default_world_fits_the_memory_budget() {
     assert!(s.memory_bytes() < 150_000_000, "{} bytes", s.memory_bytes());
 }
 
+/// Two views of `small_world`: along the lane from its start, and across the rows.
+fn lane_views() -> [Isometry3<f64>; 2] {
+    [
+        look_at(Vector3::new(1.0, 1.25, 1.0), Vector3::new(1.0, 0.0, -0.25)),
+        look_at(Vector3::new(6.0, 1.25, 1.2), Vector3::new(0.2, 1.0, -0.1)),
+    ]
+}
+
 /// The two depth images agree within 1 mm on at least 99.9 % of the pixels.
 fn assert_same_depth(a: &Frame, b: &Frame) {
     let same = a
@@ -434,10 +442,7 @@ fn embree_and_the_builtin_bvh_render_the_same_depth_image() {
     };
     let embree = super::build_renderer(&world, &p).expect("embree builds the scene");
     let intr = Intrinsics::from_hfov(640, 480, 87.0, Default::default());
-    for pose in [
-        look_at(Vector3::new(1.0, 1.25, 1.0), Vector3::new(1.0, 0.0, -0.25)),
-        look_at(Vector3::new(6.0, 1.25, 1.2), Vector3::new(0.2, 1.0, -0.1)),
-    ] {
+    for pose in lane_views() {
         let a = render(&bvh, &intr, &pose);
         let b = render(&embree, &intr, &pose);
         assert_same_depth(&a, &b);
@@ -634,10 +639,7 @@ fn a_loaded_world_mesh_renders_as_the_geometry_it_was_taken_from() {
         "one mesh, no ground"
     );
     let intr = Intrinsics::from_hfov(320, 240, 87.0, Default::default());
-    for pose in [
-        look_at(Vector3::new(1.0, 1.25, 1.0), Vector3::new(1.0, 0.0, -0.25)),
-        look_at(Vector3::new(6.0, 1.25, 1.2), Vector3::new(0.2, 1.0, -0.1)),
-    ] {
+    for pose in lane_views() {
         let a = render(&generated, &intr, &pose);
         let b = render(&loaded, &intr, &pose);
         assert_same_depth(&a, &b);
