@@ -381,7 +381,8 @@ pub struct Setup {
     pub tap: Option<std::sync::mpsc::Sender<vinebench_msgs::Message>>,
 }
 
-/// The scenario's `[world.mesh]` file (relative to the scenario file), read as the
+/// The scenario's `[world.mesh]` file (relative to the scenario file), read and checked
+/// ([`WorldMesh::validate`](vinebench_sim::render::scene::WorldMesh::validate)) as the
 /// render geometry it stands for; `None` when `world.mesh.file` is empty.
 pub fn load_world_mesh(
     sc: &LoadedScenario,
@@ -392,11 +393,18 @@ pub fn load_world_mesh(
     }
     let mesh = crate::mapper::ply::read_mesh(&sc.base_dir.join(file))
         .map_err(|e| sc.field_error("world.mesh.file", format!("a PLY triangle mesh: {e}")))?;
-    Ok(Some(vinebench_sim::render::scene::WorldMesh {
+    let mesh = vinebench_sim::render::scene::WorldMesh {
         vertices: mesh.vertices.iter().map(|v| v.map(f64::from)).collect(),
         colors: mesh.colors,
         triangles: mesh.triangles,
-    }))
+    };
+    mesh.validate().map_err(|e| {
+        sc.field_error(
+            "world.mesh.file",
+            format!("a valid triangle mesh in `{file}`: {e}"),
+        )
+    })?;
+    Ok(Some(mesh))
 }
 
 /// Builds the world, robot, route, motion model, sensors and estimators of a scenario;
@@ -464,10 +472,11 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
     };
     let mut sensors = build_sensors(&s.sensors, &s.faults, &ctx).map_err(|e| sc.param_error(e))?;
     vinebench_sim::render::validate(&s.render).map_err(|e| sc.param_error(e))?;
+    // Read even when no camera draws it: a wrong path fails here, not in a later run.
+    let mesh = load_world_mesh(sc)?;
     let renderer = if s.sensors.cameras.is_empty() {
         None
     } else {
-        let mesh = load_world_mesh(sc)?;
         let r = Arc::new(
             vinebench_sim::render::build_renderer_with_mesh(&world, &s.render, mesh.as_ref())
                 .map_err(|e| sc.param_error(e))?,

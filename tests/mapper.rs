@@ -1105,4 +1105,14 @@ fn a_mapping_run_writes_map_mesh_model_and_scores() {
         e.contains("world.mesh.file") && e.contains("no-such-mesh.ply"),
         "{e}"
     );
+    // The file is read even when no camera would draw it.
+    again.scenario.sensors.cameras.clear();
+    let e = vinebench::runner::setup(&again)
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("world.mesh.file") && e.contains("no-such-mesh.ply"),
+        "{e}"
+    );
 }

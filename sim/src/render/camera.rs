@@ -1118,6 +1118,7 @@ impl ImageNoise {
         assert_eq!(linear.len(), out.len(), "image sizes");
         let normals = IndexedRng::new(rng.random());
         let (r2, gain) = (self.read_noise * self.read_noise, self.shot_gain);
+        let table: &SrgbTable = &SRGB;
         out.par_chunks_mut(NOISE_CHUNK)
             .zip(linear.par_chunks(NOISE_CHUNK))
             .enumerate()
@@ -1126,7 +1127,7 @@ impl ImageNoise {
                     let n = normals.normals4(((c * NOISE_CHUNK) / 4 + q) as u64);
                     for ((o, x), n) in o4.iter_mut().zip(x4).zip(n) {
                         let sigma = (r2 + gain * x.max(0.0)).sqrt();
-                        *o = linear_to_srgb_u8(*x + sigma * n);
+                        *o = table.encode(*x + sigma * n);
                     }
                 }
             });
@@ -1155,22 +1156,42 @@ pub fn srgb_to_linear(s: f64) -> f64 {
     }
 }
 
-/// Bins of the coarse lookup table of [`linear_to_srgb_u8`].
+/// Bins of the coarse lookup table of [`linear_to_srgb_u8`]. Fine enough that a bin
+/// holds at most one code threshold: the steepest code step of sRGB is the linear
+/// segment's, `1/(12.92·255)` = 1/3295 of full scale, wider than a bin.
 const SRGB_LUT_BINS: usize = 4096;
 
 struct SrgbTable {
     /// `thresholds[c]`: the linear value where code `c + 1` starts (sRGB midpoint
-    /// `(c + 0.5)/255` decoded), `c` in 0..255.
-    thresholds: [f32; 255],
+    /// `(c + 0.5)/255` decoded), `c` in 0..255; `thresholds[255]` is `+∞`.
+    thresholds: [f32; 256],
     /// Code at the lower end of each linear bin `[k, k + 1)/SRGB_LUT_BINS`.
     coarse: [u8; SRGB_LUT_BINS],
     /// Decoded linear value of each code.
     decode: [f32; 256],
 }
 
+impl SrgbTable {
+    /// [`linear_to_srgb_u8`] without branches: the bin's code, plus one when `x` lies
+    /// past the single threshold a bin can hold. NaN and `x ≤ 0` fall in bin 0 below its
+    /// threshold (code 0); `x ≥ 1` falls in the last bin, whose code is 255.
+    #[inline(always)]
+    fn encode(&self, x: f32) -> u8 {
+        // `as` saturates: NaN and negatives give bin 0, large values the last bin.
+        let k = ((x * SRGB_LUT_BINS as f32) as usize).min(SRGB_LUT_BINS - 1);
+        let c = self.coarse[k] as usize;
+        (c + usize::from(x >= self.thresholds[c])).min(255) as u8
+    }
+}
+
 static SRGB: LazyLock<SrgbTable> = LazyLock::new(|| {
-    let thresholds: [f32; 255] =
-        std::array::from_fn(|c| srgb_to_linear((c as f64 + 0.5) / 255.0) as f32);
+    let thresholds: [f32; 256] = std::array::from_fn(|c| {
+        if c < 255 {
+            srgb_to_linear((c as f64 + 0.5) / 255.0) as f32
+        } else {
+            f32::INFINITY
+        }
+    });
     let coarse = std::array::from_fn(|k| {
         let x = k as f32 / SRGB_LUT_BINS as f32;
         thresholds.iter().take_while(|&&t| x >= t).count() as u8
@@ -1188,19 +1209,7 @@ static SRGB: LazyLock<SrgbTable> = LazyLock::new(|| {
 /// thresholds finish the job, so the result equals rounding the exact transfer function
 /// (up to `f32` rounding at the thresholds).
 pub fn linear_to_srgb_u8(x: f32) -> u8 {
-    if x.is_nan() || x <= 0.0 {
-        return 0;
-    }
-    if x >= 1.0 {
-        return 255;
-    }
-    let t = &*SRGB;
-    let k = ((x * SRGB_LUT_BINS as f32) as usize).min(SRGB_LUT_BINS - 1);
-    let mut c = t.coarse[k] as usize;
-    while c < 255 && x >= t.thresholds[c] {
-        c += 1;
-    }
-    c as u8
+    SRGB.encode(x)
 }
 
 /// Decodes an 8-bit sRGB code to linear intensity (table lookup).
@@ -1787,6 +1796,24 @@ mod tests {
         assert!(checked > 199_000);
         for c in 0..=255u8 {
             assert_eq!(linear_to_srgb_u8(srgb_u8_to_linear(c)), c);
+        }
+        for x in [
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MAX,
+            f32::MIN_POSITIVE,
+            1e-30,
+        ] {
+            let want = if x >= 1.0 { 255 } else { 0 };
+            assert_eq!(linear_to_srgb_u8(x), want, "x = {x}");
+        }
+        // The one-step lookup is exact only if no bin holds two thresholds: the threshold
+        // after the bin's first one lies at or past the bin's upper end.
+        let t = &*SRGB;
+        for k in 0..SRGB_LUT_BINS {
+            let c = t.coarse[k] as usize;
+            let upper = (k + 1) as f32 / SRGB_LUT_BINS as f32;
+            assert!(c == 255 || t.thresholds[c + 1] >= upper, "bin {k}");
         }
     }
 
