@@ -88,7 +88,7 @@ pub fn write_png(path: &Path, img: &ImageMsg) -> std::io::Result<()> {
 }
 
 /// Colour of a depth in mm: black for 0, else a red → yellow → green → cyan → blue ramp
-/// over [`DEPTH_NEAR_M`]..[`DEPTH_FAR_M`] on a log scale.
+/// over 0.3..10 m on a log scale.
 pub fn depth_colour(mm: u16) -> [u8; 3] {
     if mm == 0 {
         return [0, 0, 0];
