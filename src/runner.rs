@@ -381,9 +381,10 @@ pub struct Setup {
     pub tap: Option<std::sync::mpsc::Sender<vinebench_msgs::Message>>,
 }
 
-/// The scenario's `[world.mesh]` file (relative to the scenario file), read and checked
-/// ([`WorldMesh::validate`](vinebench_sim::render::scene::WorldMesh::validate)) as the
-/// render geometry it stands for; `None` when `world.mesh.file` is empty.
+/// The scenario's `[world.mesh]` file (PLY or OBJ by its extension, relative to the
+/// scenario file), read and checked as the render geometry it stands for (see
+/// [`WorldMesh::validate`](vinebench_sim::render::scene::WorldMesh::validate)); `None`
+/// when `world.mesh.file` is empty.
 pub fn load_world_mesh(
     sc: &LoadedScenario,
 ) -> Result<Option<vinebench_sim::render::scene::WorldMesh>, ScenarioError> {
@@ -391,8 +392,21 @@ pub fn load_world_mesh(
     if file.is_empty() {
         return Ok(None);
     }
-    let mesh = crate::mapper::ply::read_mesh(&sc.base_dir.join(file))
-        .map_err(|e| sc.field_error("world.mesh.file", format!("a PLY triangle mesh: {e}")))?;
+    let path = sc.base_dir.join(file);
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase());
+    let mesh = match ext.as_deref() {
+        Some("ply") => crate::mapper::ply::read_mesh(&path),
+        Some("obj") => crate::mapper::export::read_obj(&path),
+        _ => {
+            return Err(sc.field_error(
+                "world.mesh.file",
+                format!("a .ply or .obj triangle mesh, found `{file}`"),
+            ));
+        }
+    }
+    .map_err(|e| sc.field_error("world.mesh.file", format!("a triangle mesh: {e}")))?;
     let mesh = vinebench_sim::render::scene::WorldMesh {
         vertices: mesh.vertices.iter().map(|v| v.map(f64::from)).collect(),
         colors: mesh.colors,

@@ -1096,6 +1096,33 @@ fn a_mapping_run_writes_map_mesh_model_and_scores() {
     let scene = built.renderer.as_ref().unwrap().scene();
     assert_eq!(scene.trace.instances.len(), 2, "ground and mesh");
     assert_eq!(scene.trace.meshes[1].indices, mesh.triangles);
+    // The OBJ export reads back as the same triangles, corner by corner (positions and
+    // colours; the OBJ reader numbers vertices in the order the faces use them), and
+    // loads as the world too.
+    let obj = vinebench::mapper::export::read_obj(&run.join("map/mesh.obj")).unwrap();
+    assert_eq!(obj.triangles.len(), mesh.triangles.len());
+    assert_eq!(mesh.colors.len(), mesh.vertices.len());
+    assert_eq!(obj.colors.len(), obj.vertices.len());
+    for (a, b) in obj.triangles.iter().zip(&mesh.triangles) {
+        for (&i, &j) in a.iter().zip(b) {
+            assert_eq!(obj.vertices[i as usize], mesh.vertices[j as usize]);
+            assert_eq!(obj.colors[i as usize], mesh.colors[j as usize]);
+        }
+    }
+    again.scenario.world.mesh.file = run.join("map/mesh.obj").display().to_string();
+    let built = vinebench::runner::setup(&again).unwrap();
+    let scene = built.renderer.as_ref().unwrap().scene();
+    assert_eq!(scene.trace.meshes[1].indices, obj.triangles);
+    // Another format is refused by name.
+    again.scenario.world.mesh.file = "mesh.stl".into();
+    let e = vinebench::runner::setup(&again)
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("world.mesh.file") && e.contains(".ply or .obj"),
+        "{e}"
+    );
     // A missing file fails, naming the field and the path, also when no camera would
     // draw it.
     again.scenario.world.mesh.file = "no-such-mesh.ply".into();

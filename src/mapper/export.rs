@@ -17,6 +17,57 @@ fn write_text(path: &Path, text: &str) -> Result<(), MapperError> {
     std::fs::write(path, text).map_err(io_err(path))
 }
 
+/// Reads a Wavefront OBJ triangle mesh: every object and group merged into one mesh,
+/// polygons split into fans, points and lines left out, normals and texture coordinates
+/// ignored; vertex colours (`v x y z r g b` in 0..1, as [`write_obj`] writes them) when
+/// the file has them (a file where only some vertices have one is refused). Vertices come in the order faces first use them (per object),
+/// so vertex indices can differ from the file's; unused vertices are dropped.
+pub fn read_obj(path: &Path) -> Result<TriangleMesh, MapperError> {
+    let file = std::fs::File::open(path).map_err(io_err(path))?;
+    let opts = tobj::LoadOptions {
+        triangulate: true,
+        ignore_points: true,
+        ignore_lines: true,
+        ..Default::default()
+    };
+    // Materials (`mtllib`) are not read: the mesh is drawn with its vertex colours.
+    let (models, _) = tobj::load_obj_buf(&mut std::io::BufReader::new(file), &opts, |_| {
+        Err(tobj::LoadError::OpenFileFailed)
+    })
+    .map_err(|e| MapperError::Obj {
+        path: path.to_path_buf(),
+        problem: e.to_string(),
+    })?;
+    let mut mesh = TriangleMesh::default();
+    let mut coloured = true;
+    for m in &models {
+        let base = u32::try_from(mesh.vertices.len()).map_err(|_| MapperError::Obj {
+            path: path.to_path_buf(),
+            problem: "more than 2^32 vertices".into(),
+        })?;
+        let (p, c) = (&m.mesh.positions, &m.mesh.vertex_color);
+        mesh.vertices
+            .extend(p.chunks_exact(3).map(|v| [v[0], v[1], v[2]]));
+        coloured &= c.len() == p.len();
+        if coloured {
+            mesh.colors
+                .extend(c.chunks_exact(3).map(|c| {
+                    [c[0], c[1], c[2]].map(|x| (x.clamp(0.0, 1.0) * 255.0).round() as u8)
+                }));
+        }
+        mesh.triangles.extend(
+            m.mesh
+                .indices
+                .chunks_exact(3)
+                .map(|t| [t[0] + base, t[1] + base, t[2] + base]),
+        );
+    }
+    if !coloured {
+        mesh.colors.clear();
+    }
+    Ok(mesh)
+}
+
 /// Writes `mesh` as Wavefront OBJ: `v x y z r g b` (colour in 0..1, the extension
 /// MeshLab, Open3D and Blender read), `vn` normals when present, and 1-based faces.
 pub fn write_obj(mesh: &TriangleMesh, path: &Path) -> Result<(), MapperError> {
@@ -158,4 +209,77 @@ pub fn write_mjcf(dir: &Path, name: &str, mesh_file: &str) -> Result<(), MapperE
         &dir.join(format!("{name}.mjcf.xml")),
         &mjcf(name, mesh_file),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    fn read_text(text: &str) -> Result<TriangleMesh, MapperError> {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.obj");
+        std::fs::write(&path, text).unwrap();
+        read_obj(&path)
+    }
+
+    #[test]
+    fn obj_objects_merge_and_polygons_split_into_fans() {
+        // Two coloured objects: a quad (1-based, then a negative = relative index), and a
+        // triangle.
+        let text = "o quad\nv 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 1 1 0 0 0 1\nv 0 1 0 1 1 1\n\
+                    f 1 2 3 -1\no tri\nv 5 5 5 0 0 0\nv 6 5 5 0.5 0.5 0.5\nv 5 6 5 1 0 1\n\
+                    f 5 6 7\n";
+        let m = read_text(text).unwrap();
+        assert_eq!(m.triangles.len(), 3);
+        let corners = |t: [u32; 3]| t.map(|i| (m.vertices[i as usize], m.colors[i as usize]));
+        let (red, green, blue, white) = ([255, 0, 0], [0, 255, 0], [0, 0, 255], [255; 3]);
+        // The quad's fan from its first corner, then the triangle.
+        assert_eq!(
+            corners(m.triangles[0]),
+            [
+                ([0.0, 0.0, 0.0], red),
+                ([1.0, 0.0, 0.0], green),
+                ([1.0, 1.0, 0.0], blue)
+            ]
+        );
+        assert_eq!(
+            corners(m.triangles[1]),
+            [
+                ([0.0, 0.0, 0.0], red),
+                ([1.0, 1.0, 0.0], blue),
+                ([0.0, 1.0, 0.0], white)
+            ]
+        );
+        assert_eq!(
+            corners(m.triangles[2]),
+            [
+                ([5.0, 5.0, 5.0], [0; 3]),
+                ([6.0, 5.0, 5.0], [128; 3]),
+                ([5.0, 6.0, 5.0], [255, 0, 255])
+            ]
+        );
+        // Without colours: none.
+        let plain = read_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+        assert_eq!(plain.triangles, [[0, 1, 2]]);
+        assert!(plain.colors.is_empty());
+    }
+
+    #[test]
+    fn a_bad_obj_is_refused_naming_the_file() {
+        let e = read_text("v 0 0 zero\nf 1 1 1\n").unwrap_err().to_string();
+        assert!(e.contains("m.obj") && e.contains("OBJ"), "{e}");
+        // A face past the vertices, and colours on some vertices only.
+        for text in [
+            "v 0 0 0\nv 1 0 0\nf 1 2 3\n",
+            "v 0 0 0 1 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+        ] {
+            let e = read_text(text).unwrap_err().to_string();
+            assert!(e.contains("m.obj") && e.contains("OBJ"), "{text}: {e}");
+        }
+        let e = read_obj(Path::new("/no/such/dir/m.obj"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("/no/such/dir/m.obj"), "{e}");
+    }
 }

@@ -290,6 +290,14 @@ pub enum MapperError {
         /// The cause.
         source: std::io::Error,
     },
+    /// A Wavefront OBJ file the reader cannot parse.
+    #[error("{path}: not a readable OBJ mesh: {problem}")]
+    Obj {
+        /// The file.
+        path: PathBuf,
+        /// What the parser reported.
+        problem: String,
+    },
     /// A PLY file that is not what the reader expects.
     #[error("{path}: `{field}`: expected {expected}, found {found}")]
     Ply {
