@@ -20,8 +20,9 @@ fn write_text(path: &Path, text: &str) -> Result<(), MapperError> {
 /// Reads a Wavefront OBJ triangle mesh: every object and group merged into one mesh,
 /// polygons split into fans, points and lines left out, normals and texture coordinates
 /// ignored; vertex colours (`v x y z r g b` in 0..1, as [`write_obj`] writes them) when
-/// the file has them (a file where only some vertices have one is refused). Vertices come in the order faces first use them (per object),
-/// so vertex indices can differ from the file's; unused vertices are dropped.
+/// the file has them (a file where only some vertices have one is refused). Vertices
+/// come in the order faces first use them (per object), so vertex indices can differ
+/// from the file's; unused vertices are dropped.
 pub fn read_obj(path: &Path) -> Result<TriangleMesh, MapperError> {
     let file = std::fs::File::open(path).map_err(io_err(path))?;
     let opts = tobj::LoadOptions {
