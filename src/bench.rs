@@ -295,15 +295,29 @@ pub fn camera_scenario_real_time_factor(
     Ok(simulated / best)
 }
 
-/// The renderer of a `rows`-row default vineyard (rows along east) with `backend`.
+/// The renderer of a `rows`-row default vineyard (rows along east, default row length)
+/// with `backend`.
 pub fn bench_renderer(
     rows: u32,
+    backend: vinebench_sim::params::RenderBackend,
+) -> Result<vinebench_sim::render::shade::Renderer, BenchError> {
+    bench_renderer_sized(rows, None, backend)
+}
+
+/// The renderer of a default vineyard of `rows` rows along east, each `length_m` long
+/// (`None`: the default length), with `backend`.
+pub fn bench_renderer_sized(
+    rows: u32,
+    length_m: Option<f64>,
     backend: vinebench_sim::params::RenderBackend,
 ) -> Result<vinebench_sim::render::shade::Renderer, BenchError> {
     use vinebench_sim::params::{RenderParams, WorldParams};
     let mut p = WorldParams::default();
     p.rows.count = rows;
     p.rows.yaw_deg = 0.0;
+    if let Some(l) = length_m {
+        p.rows.length_m = l;
+    }
     let world = vinebench_sim::world::World::generate(1, &p)
         .map_err(|e| BenchError::Setup(e.to_string()))?;
     let rp = RenderParams {
@@ -331,22 +345,47 @@ pub fn bench_views() -> Vec<nalgebra::Isometry3<f64>> {
     ]
 }
 
+/// Rows of the reference-size vineyard ([`reference_views`]).
+pub const REFERENCE_ROWS: u32 = 4;
+/// Row length of the reference-size vineyard, m: with [`REFERENCE_ROWS`] rows of default
+/// vines about 1.9 M instanced triangles, the size of the 1.5 M-triangle vineyard on which
+/// issue #4 measured Embree and set the default backend's target (≥ 50 % of Embree).
+pub const REFERENCE_LENGTH_M: f64 = 30.0;
+
+/// Camera poses in the reference-size vineyard ([`REFERENCE_ROWS`] rows of
+/// [`REFERENCE_LENGTH_M`]): the same four kinds of view as [`bench_views`] (along a lane,
+/// across the rows, obliquely, back along a lane), 1.2 m up in its lanes.
+pub fn reference_views() -> Vec<nalgebra::Isometry3<f64>> {
+    use vinebench_sim::render::camera::look_at as view;
+    vec![
+        view(Vector3::new(2.0, 3.75, 1.2), Vector3::new(1.0, 0.0, -0.1)),
+        view(Vector3::new(12.0, 1.25, 1.2), Vector3::new(0.0, 1.0, -0.2)),
+        view(
+            Vector3::new(20.0, 6.25, 1.2),
+            Vector3::new(-1.0, 0.6, -0.15),
+        ),
+        view(Vector3::new(28.0, 1.25, 1.2), Vector3::new(-1.0, 0.0, 0.05)),
+    ]
+}
+
 /// Primary rays per second (millions) of `renderer`'s ray caster at 640×480 over
-/// [`bench_views`], 8×8-tile packets on all rayon threads, first hit only; best of
-/// `repeats`.
-pub fn cast_mrays(renderer: &vinebench_sim::render::shade::Renderer, repeats: usize) -> f64 {
+/// `views`, 8×8-tile packets on all rayon threads, first hit only; best of `repeats`.
+pub fn cast_mrays(
+    renderer: &vinebench_sim::render::shade::Renderer,
+    views: &[nalgebra::Isometry3<f64>],
+    repeats: usize,
+) -> f64 {
     use rayon::prelude::*;
     use vinebench_sim::render::camera::Intrinsics;
     use vinebench_sim::render::trace::{Hit, PACKET_SIZE, RayPacket};
     let intr = Intrinsics::from_hfov(640, 480, 87.0, Default::default());
     let rays = intr.pixel_rays();
-    let views = bench_views();
     let origin = renderer.scene().trace.origin_in_world;
     let caster = renderer.caster();
     let mut best = f64::INFINITY;
     for _ in 0..repeats.max(1) {
         let t0 = Instant::now();
-        for pose in &views {
+        for pose in views {
             let o = pose.translation.vector - origin;
             let r = pose.rotation.to_rotation_matrix();
             let hits: usize = (0..60u32)
@@ -532,21 +571,70 @@ pub fn render_figures(quick: bool) -> Result<Vec<Figure>, BenchError> {
         unit: "MB",
         target: None,
     });
+    let views = bench_views();
+    let bvh_mrays = cast_mrays(&bvh, &views, repeats);
     out.push(Figure {
         name: "render: primary rays, built-in BVH, 640x480 first hit, all threads",
-        value: cast_mrays(&bvh, repeats),
+        value: bvh_mrays,
         unit: "Mrays/s",
         target: Some(20.0),
     });
     #[cfg(feature = "embree")]
     {
         let embree = bench_renderer(10, RenderBackend::Embree)?;
+        let embree_mrays = cast_mrays(&embree, &views, repeats);
         out.push(Figure {
             name: "render: primary rays, Embree 3, 640x480 first hit, all threads",
-            value: cast_mrays(&embree, repeats),
+            value: embree_mrays,
             unit: "Mrays/s",
             target: None,
         });
+        out.push(Figure {
+            name: "render: primary rays, built-in BVH / Embree 3 (10-row x 120 m vineyard)",
+            value: 100.0 * bvh_mrays / embree_mrays,
+            unit: "%",
+            target: Some(50.0),
+        });
+    }
+    // The same on a vineyard of the size issue #4 measured Embree on.
+    {
+        let small =
+            bench_renderer_sized(REFERENCE_ROWS, Some(REFERENCE_LENGTH_M), RenderBackend::Bvh)?;
+        out.push(Figure {
+            name: "render: 4-row x 30 m vineyard, instanced triangles",
+            value: small.scene().instanced_triangles() as f64 / 1e6,
+            unit: "M",
+            target: None,
+        });
+        let views = reference_views();
+        let small_mrays = cast_mrays(&small, &views, repeats);
+        out.push(Figure {
+            name: "render: 4-row x 30 m vineyard, primary rays, built-in BVH",
+            value: small_mrays,
+            unit: "Mrays/s",
+            target: None,
+        });
+        #[cfg(feature = "embree")]
+        {
+            let embree = bench_renderer_sized(
+                REFERENCE_ROWS,
+                Some(REFERENCE_LENGTH_M),
+                RenderBackend::Embree,
+            )?;
+            let embree_mrays = cast_mrays(&embree, &views, repeats);
+            out.push(Figure {
+                name: "render: 4-row x 30 m vineyard, primary rays, Embree 3",
+                value: embree_mrays,
+                unit: "Mrays/s",
+                target: None,
+            });
+            out.push(Figure {
+                name: "render: 4-row x 30 m vineyard, primary rays, built-in BVH / Embree 3",
+                value: 100.0 * small_mrays / embree_mrays,
+                unit: "%",
+                target: Some(50.0),
+            });
+        }
     }
     out.push(Figure {
         name: "render: shaded 640x480 frames (cast + textures + shadows), all threads",
