@@ -12,12 +12,12 @@
 
 use criterion::{BatchSize, Criterion, Throughput, black_box, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3};
-use vinebench::estimator::ins::{InsCore, ProcessNoise};
-use vinebench::estimator::{Eif, EifParams, Estimator};
 use vinebench_msgs::geodesy::{Geodetic, LocalEnu};
 use vinebench_msgs::{
     FixStatus, FrameId, GnssFixMsg, ImuMsg, Message, Nanos, OdometryMsg, StaticTransforms,
 };
+use vinebench_onboard::estimator::ins::{InsCore, ProcessNoise};
+use vinebench_onboard::estimator::{Eif, EifParams, Estimator};
 
 const STEPS: usize = 10_000;
 const DT: f64 = vinebench::bench::SYNTHETIC_IMU_DT_S;

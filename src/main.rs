@@ -330,10 +330,10 @@ fn dispatch(cmd: Command) -> Result<u8> {
                 figures.extend(vinebench::bench::render_figures(quick)?);
             }
             if only == "all" || only == "recording" {
-                figures.extend(vinebench::bench_recording::recording_figures(quick)?);
+                figures.extend(vinebench::bench::recording::recording_figures(quick)?);
             }
             if only == "all" || only == "mapper" {
-                figures.extend(vinebench::bench_mapper::mapper_figures(quick)?);
+                figures.extend(vinebench::bench::mapper::mapper_figures(quick)?);
             }
             if only == "all" || only == "slam" {
                 figures.extend(vinebench::bench::slam_tracking_figures(quick)?);
@@ -440,7 +440,11 @@ fn print_summary(o: &runner::RunOutcome) {
 }
 
 /// Each expectation's outcome, then PASS/FAIL and where the report is.
-fn print_verdict(expectations: &[vinebench::expect::ExpectationResult], passed: bool, dir: &Path) {
+fn print_verdict(
+    expectations: &[vinebench::scoring::expect::ExpectationResult],
+    passed: bool,
+    dir: &Path,
+) {
     for x in expectations {
         println!("{x}");
     }
@@ -559,8 +563,8 @@ fn vocabulary(
     depth: usize,
     quiet: bool,
 ) -> Result<u8> {
-    use vinebench::slam::bow::VocabularyConfig;
     use vinebench::vocabulary as voc;
+    use vinebench_onboard::slam::bow::VocabularyConfig;
     let cfg = VocabularyConfig {
         branching,
         depth,

@@ -19,12 +19,11 @@
 //! present, which scoring then uses), `loops.csv` (with a SLAM and ground truth), `map/`,
 //! `report.json`, `report.md`, `trajectories.svg`.
 
-use crate::estimator::EstimatorSet;
-use crate::expect::ExpectationResult;
 use crate::recording::reader::{self, ChannelInfo, RawMessage};
 use crate::recording::ros::{self, TransformStamped};
 use crate::recording::{self, RecordingError, topics};
 use crate::scenario::{LoadedScenario, ScenarioError};
+use crate::scoring::expect::ExpectationResult;
 use crate::scoring::{self, SourceScore, metrics};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
@@ -38,6 +37,7 @@ use vinebench_msgs::geodesy::{Geodetic, LocalEnu};
 use vinebench_msgs::{
     FixStatus, FrameId, Message, Nanos, PoseSample, StaticTransforms, TimedMessage, Trajectory,
 };
+use vinebench_onboard::estimator::EstimatorSet;
 
 /// A replay that could not be carried out.
 #[derive(Debug, Error)]
@@ -187,7 +187,7 @@ pub struct ReplaySource {
     /// Notes.
     pub notes: Vec<String>,
     /// The SLAM's own metrics (tracking losses, loops and, with ground truth, their
-    /// correctness; see `crate::expect::SLAM_METRICS`); empty for other sources.
+    /// correctness; see `crate::scoring::expect::SLAM_METRICS`); empty for other sources.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub slam: BTreeMap<String, f64>,
 }
@@ -231,7 +231,7 @@ pub struct ReplayReport {
     /// The maps of `[mapper]` (recorded scenario or mapping file), scored when the
     /// recording is a vinebench run (its world is generated again from the recorded
     /// scenario for the true surfaces).
-    pub maps: Vec<crate::mapping::MapReport>,
+    pub maps: Vec<crate::runner::mapping::MapReport>,
     /// Expectation outcomes (with ground truth only).
     pub expectations: Vec<ExpectationResult>,
     /// True when every expectation holds.
@@ -853,7 +853,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         .slam
         .cameras
         .iter()
-        .flat_map(|c| crate::slam::system::stereo_image_topics(c))
+        .flat_map(|c| vinebench_onboard::slam::system::stereo_image_topics(c))
         .collect();
     let unrecorded: Vec<&String> = slam_topics
         .iter()
@@ -890,7 +890,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         .collect();
     let depth_recorded = camera_topics_present
         .iter()
-        .any(|t| t.ends_with(crate::mapper::DEPTH_SUFFIX));
+        .any(|t| t.ends_with(vinebench_onboard::mapper::DEPTH_SUFFIX));
     let mut mapping = if s.mapper.enabled && user_cfg.is_none() && !depth_recorded {
         missing_topics.push(
             "mapper: no depth images recorded (excluded by [recording] exclude_topics?), maps \
@@ -899,14 +899,18 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         );
         None
     } else {
-        crate::mapping::MappingStage::from_scenario(&sc, &static_tf, Some(&camera_topics_present))
-            .map_err(|e| ReplayError::Input {
+        crate::runner::mapping::MappingStage::from_scenario(
+            &sc,
+            &static_tf,
+            Some(&camera_topics_present),
+        )
+        .map_err(|e| ReplayError::Input {
             file: cfg_file.clone().unwrap_or_else(|| file_name.clone()),
             problem: e.to_string(),
         })?
     };
-    let mut map_error: Option<crate::mapper::MapperError> = None;
-    let mut slam_error: Option<crate::slam::SlamError> = None;
+    let mut map_error: Option<vinebench_onboard::mapper::MapperError> = None;
+    let mut slam_error: Option<vinebench_onboard::slam::SlamError> = None;
     let mut estimators =
         EstimatorSet::new(&s.estimators, static_tf.clone(), LocalEnu::new(s.origin)).map_err(
             |e| ReplayError::Input {
@@ -970,9 +974,10 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         });
     }
     let mut out = estimators.finish();
-    let slam: Vec<crate::slam::SlamOutput> = slam.into_iter().map(|v| v.finish()).collect();
+    let slam: Vec<vinebench_onboard::slam::SlamOutput> =
+        slam.into_iter().map(|v| v.finish()).collect();
     out.estimators
-        .extend(slam.iter().map(crate::slam::estimator_output));
+        .extend(slam.iter().map(vinebench_onboard::slam::estimator_output));
     let mapping = match mapping {
         Some(m) => {
             // The true surfaces of a vinebench run: its world, generated again.
@@ -998,7 +1003,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     };
     let maps = mapping
         .as_ref()
-        .map(crate::mapping::score)
+        .map(crate::runner::mapping::score)
         .unwrap_or_default();
 
     // Outputs.
@@ -1011,8 +1016,11 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     };
     std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
     if let Some(m) = &mapping {
-        crate::mapping::export(&dir, m).map_err(|e| ReplayError::Io {
-            path: dir.join(crate::mapping::MAP_DIR).display().to_string(),
+        crate::runner::mapping::export(&dir, m).map_err(|e| ReplayError::Io {
+            path: dir
+                .join(crate::runner::mapping::MAP_DIR)
+                .display()
+                .to_string(),
             source: std::io::Error::other(e.to_string()),
         })?;
     }
@@ -1060,7 +1068,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         else {
             return BTreeMap::new();
         };
-        crate::expect::SLAM_METRICS
+        crate::scoring::expect::SLAM_METRICS
             .iter()
             .filter_map(|(m, _)| {
                 let v = o.metric(m).or_else(|| l.metric(m).filter(|_| have_truth))?;
@@ -1096,10 +1104,10 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             .iter()
             .map(|x| {
                 x.evaluate(|metric, source| {
-                    if source == crate::expect::ROBOT_SOURCE {
+                    if source == crate::scoring::expect::ROBOT_SOURCE {
                         return robot.get(metric).copied();
                     }
-                    if crate::mapping::is_map_metric(metric) {
+                    if crate::runner::mapping::is_map_metric(metric) {
                         return maps.iter().find(|m| m.source == source)?.metric(metric);
                     }
                     let r = sources.iter().find(|r| r.name == source)?;
@@ -1143,7 +1151,7 @@ fn write_report(
     dir: &Path,
     report: &ReplayReport,
     truth: &Trajectory,
-    estimates: &[crate::estimator::EstimatorOutput],
+    estimates: &[vinebench_onboard::estimator::EstimatorOutput],
 ) -> Result<(), ReplayError> {
     let jp = dir.join("report.json");
     let json =
@@ -1216,7 +1224,7 @@ fn write_report(
         }
     }
     if !report.maps.is_empty() {
-        md.push_str(&crate::report::maps_markdown(&report.maps));
+        md.push_str(&crate::runner::report::maps_markdown(&report.maps));
     }
     if !report.expectations.is_empty() {
         let _ = writeln!(md, "\n## Expectations\n");

@@ -16,15 +16,15 @@
 //! assert_eq!(s.scenario.world.rows.length_m, 120.0); // from the defaults
 //! ```
 
-use crate::estimator::EstimatorsParams;
-use crate::expect::{Expectation, ExpectationError};
 use crate::scoring::ScoringParams;
+use crate::scoring::expect::{Expectation, ExpectationError};
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 use vinebench_msgs::Nanos;
 use vinebench_msgs::geodesy::Geodetic;
+use vinebench_onboard::estimator::EstimatorsParams;
 use vinebench_sim::params::{
     FaultsParams, MotionParams, ParamError, PhysicsParams, RenderParams, RobotParams, RouteParams,
     SensorsParams, WorldParams,
@@ -69,10 +69,10 @@ pub struct Scenario {
     /// `[recording]`.
     pub recording: crate::recording::RecordingParams,
     /// `[mapper]`.
-    pub mapper: crate::mapping::MappingParams,
+    pub mapper: MappingParams,
     /// `[slam]`: the visual SLAM (an estimate source named `slam`).
-    pub slam: crate::slam::SlamConfig,
-    /// Expectations, in the expectation language (see [`crate::expect`]).
+    pub slam: vinebench_onboard::slam::SlamConfig,
+    /// Expectations, in the expectation language (see [`crate::scoring::expect`]).
     pub expect: Vec<String>,
 }
 
@@ -319,7 +319,7 @@ impl LoadedScenario {
             match Expectation::parse(text, &sources) {
                 Ok(x) => {
                     for r in x.refs() {
-                        let slam_metric = crate::expect::SLAM_METRICS
+                        let slam_metric = crate::scoring::expect::SLAM_METRICS
                             .iter()
                             .any(|(m, _)| *m == r.metric);
                         if slam_metric && !slam_sources.contains(&r.source.as_str()) {
@@ -446,6 +446,28 @@ fn segments(path: &str) -> Vec<Seg<'_>> {
         }
     }
     out
+}
+
+/// `[mapper]` of a scenario (every key documented in `scenarios/defaults.toml`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MappingParams {
+    /// Build maps at all.
+    pub enabled: bool,
+    /// Estimate sources to map with; the first is the main map (mesh and exports).
+    pub sources: Vec<vinebench_onboard::estimator::EstimatorKind>,
+    /// `[mapper.map]`: how each map is built.
+    pub map: vinebench_onboard::mapper::MapperParams,
+    /// `[mapper.scoring]`: how each map is scored.
+    pub scoring: crate::scoring::map::MapScoreParams,
+}
+
+impl Default for MappingParams {
+    /// The values of `[mapper]` in `scenarios/defaults.toml`.
+    fn default() -> Self {
+        vinebench_msgs::defaults::section("mapper")
+            .expect("the embedded scenarios/defaults.toml is checked by tests")
+    }
 }
 
 #[cfg(test)]

@@ -21,9 +21,9 @@ use thiserror::Error;
 
 use crate::runner::{self, RunError};
 use crate::scenario::{LoadedScenario, ScenarioError};
-use crate::slam::Descriptor;
-use crate::slam::bow::{BowError, Vocabulary, VocabularyConfig};
-use crate::slam::loop_closing::LoopMethod;
+use vinebench_onboard::slam::Descriptor;
+use vinebench_onboard::slam::bow::{BowError, Vocabulary, VocabularyConfig};
+use vinebench_onboard::slam::loop_closing::LoopMethod;
 
 /// Default branching factor `k` of `vinebench vocabulary` (DBoW2's and ORB-SLAM's).
 pub const DEFAULT_BRANCHING: usize = 10;
@@ -220,7 +220,7 @@ pub fn train(
 ///
 /// ```no_run
 /// use vinebench::scenario::LoadedScenario;
-/// use vinebench::slam::bow::VocabularyConfig;
+/// use vinebench_onboard::slam::bow::VocabularyConfig;
 /// let sc = LoadedScenario::load("scenarios/vocabularies/training.toml".as_ref())?;
 /// let cfg = VocabularyConfig { branching: 10, depth: 4, ..VocabularyConfig::default() };
 /// let (voc, summary) = vinebench::vocabulary::train_from_scenario(&sc, &cfg, None)?;

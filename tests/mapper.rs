@@ -10,20 +10,20 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
-use vinebench::mapper::voxel::VoxelGrid;
-use vinebench::mapper::{
-    Map, Mapper, MapperParams, MapperStats, PointCloud, RgbdFrame, TriangleMesh, bpa, export, ply,
-    poisson,
-};
 use vinebench_msgs::{
     FrameId, ImageEncoding, ImageMsg, Message, Nanos, PoseSample, StaticTransforms, Trajectory,
+};
+use vinebench_onboard::mapper::voxel::VoxelGrid;
+use vinebench_onboard::mapper::{
+    Map, Mapper, MapperParams, MapperStats, PointCloud, RgbdFrame, TriangleMesh, bpa, export, ply,
+    poisson,
 };
 use vinebench_sim::params::{RenderParams, WorldParams};
 use vinebench_sim::render::camera::{BrownConrady, Intrinsics, look_at};
 use vinebench_sim::render::scene::{Material, RenderScene, ShadingMesh};
 use vinebench_sim::render::shade::{Frame, Lighting, Renderer};
 use vinebench_sim::render::texture::encode_srgb;
-use vinebench_sim::render::{Affine3, Instance, MeshGeometry, TraceScene, trace};
+use vinebench_sim::render::{Affine3, Instance, MeshGeometry, TraceScene};
 use vinebench_sim::world::World;
 
 const CAM_FRAME: &str = "cam_optical";
@@ -117,7 +117,7 @@ fn plane_renderer(world_from_plane: &Isometry3<f64>) -> Renderer {
         caster_bounds: ([-30.0; 3], [30.0; 3]),
         grape: vinebench_sim::params::GrapeColour::Red,
     };
-    let caster = trace::build_default(&scene.trace);
+    let caster = vinebench_sim::render::build_default(&scene.trace);
     Renderer::new(scene, caster, lighting(), 0.05, 7)
 }
 
@@ -941,7 +941,7 @@ fn elevation_is_height_above_the_local_ground() {
     for k in 0..100 {
         pts.push([1.0, 1.0, 0.25 + f64::from(k) * 0.01]); // post, 0.25-1.24 m
     }
-    let e = vinebench::mapper::elevation(&pts, 0.5, 0.05);
+    let e = vinebench_onboard::mapper::elevation(&pts, 0.5, 0.05);
     for (p, e) in pts.iter().zip(&e) {
         let ground = 0.2 + 0.05 * p[0];
         // The ground of a 0.5 m cell is its low quantile lowered to the lowest of its
@@ -1099,7 +1099,7 @@ fn a_mapping_run_writes_map_mesh_model_and_scores() {
     // The OBJ export reads back as the same triangles, corner by corner (positions and
     // colours; the OBJ reader numbers vertices in the order the faces use them), and
     // loads as the world too.
-    let obj = vinebench::mapper::export::read_obj(&run.join("map/mesh.obj")).unwrap();
+    let obj = vinebench_onboard::mapper::export::read_obj(&run.join("map/mesh.obj")).unwrap();
     assert_eq!(obj.triangles.len(), mesh.triangles.len());
     assert_eq!(mesh.colors.len(), mesh.vertices.len());
     assert_eq!(obj.colors.len(), obj.vertices.len());

@@ -927,7 +927,8 @@ fn replay_builds_the_recorded_maps_as_the_live_run_did() {
         "{:?}",
         m.stats
     );
-    let ply = vinebench::mapper::ply::read_cloud(&tmp.path().join("field/map/map.ply")).unwrap();
+    let ply =
+        vinebench_onboard::mapper::ply::read_cloud(&tmp.path().join("field/map/map.ply")).unwrap();
     assert_eq!(ply.positions.len() as u64, m.stats.voxels);
     assert!(!tmp.path().join("field/map/mesh.ply").exists());
 

@@ -5,7 +5,8 @@
 #![allow(clippy::unwrap_used)]
 
 use assert_cmd::Command;
-use vinebench::report::{Report, RobotOutcome};
+use vinebench::runner::RobotOutcome;
+use vinebench::runner::report::Report;
 use vinebench::runner::{self, RunOptions};
 use vinebench::scenario::LoadedScenario;
 use vinebench_sim::physics::Obstacle;

@@ -7,12 +7,12 @@
 #![allow(clippy::unwrap_used)]
 
 use proptest::prelude::*;
-use vinebench::slam::bench::value_noise;
-use vinebench::slam::fast::{self, FastConfig, FastDetector};
-use vinebench::slam::image::{BlurScratch, gaussian_blur7};
-use vinebench::slam::orb::{EDGE, KeyPoint, describe, ic_angle};
-use vinebench::slam::ssc::{SscScratch, ssc};
-use vinebench::slam::{
+use vinebench_onboard::slam::bench::value_noise;
+use vinebench_onboard::slam::fast::{self, FastConfig, FastDetector};
+use vinebench_onboard::slam::image::{BlurScratch, gaussian_blur7};
+use vinebench_onboard::slam::orb::{EDGE, KeyPoint, describe, ic_angle};
+use vinebench_onboard::slam::ssc::{SscScratch, ssc};
+use vinebench_onboard::slam::{
     FeatureGrid, FrontEndConfig, GrayImage, GridConfig, StereoCamera, StereoFrame, StereoFrontEnd,
     hamming,
 };
@@ -378,7 +378,7 @@ fn config_tables_reject_unknown_keys_and_fill_defaults() {
     assert_eq!(c.stereo.max_depth_baselines, 40.0);
     assert!(toml::from_str::<FrontEndConfig>("[orb]\nn_level = 4\n").is_err());
     let bad = FrontEndConfig {
-        orb: vinebench::slam::OrbConfig {
+        orb: vinebench_onboard::slam::OrbConfig {
             scale_factor: 1.0,
             ..Default::default()
         },

@@ -7,8 +7,8 @@
 // Test helpers panic on failure by design.
 #![allow(clippy::unwrap_used)]
 
-use vinebench::slam::{SlamConfig, SlamOutput, VisualSlam};
 use vinebench_msgs::{Message, StaticTransforms};
+use vinebench_onboard::slam::{SlamConfig, SlamOutput, VisualSlam};
 
 fn run(cfg: &SlamConfig, messages: &[Message], tf: &StaticTransforms) -> SlamOutput {
     let mut slam = VisualSlam::new("slam", cfg.clone(), tf.clone(), None).unwrap();

@@ -7,8 +7,8 @@
 use assert_cmd::Command;
 use std::path::{Path, PathBuf};
 use vinebench::scenario::LoadedScenario;
-use vinebench::slam::bow::{Database, Vocabulary, VocabularyConfig, score};
 use vinebench::vocabulary::{self, DEFAULT_BRANCHING, DEFAULT_DEPTH};
+use vinebench_onboard::slam::bow::{Database, Vocabulary, VocabularyConfig, score};
 
 fn vinebench() -> Command {
     Command::cargo_bin("vinebench").expect("the vinebench binary is built for tests")

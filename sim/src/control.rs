@@ -4,7 +4,7 @@
 //! It plays the driver, not the algorithm under test, so it reads the true state.
 //!
 //! - **Progress** along the route is monotone and searched within
-//!   [`crate::motion::kinematic::PROGRESS_WINDOW_M`] of the previous value; it never
+//!   [`PROGRESS_WINDOW_M`] of the previous value; it never
 //!   crosses a cusp ([`Route::cusps_m`]) before the robot has stopped there, after which
 //!   the direction of travel flips (a differential robot reverses; a holonomic robot in
 //!   `fixed` heading mode strafes back).
@@ -29,6 +29,9 @@ use crate::route::Route;
 use nalgebra::Vector2;
 use std::f64::consts::PI;
 
+/// Half-width of the arc-length window in which progress along the route is searched
+/// around its previous value, m. The robot moves about 2 cm per controller tick.
+pub const PROGRESS_WINDOW_M: f64 = 1.0;
 /// Fraction of the acceleration limit used to brake in the speed profile.
 pub const BRAKE_FRACTION: f64 = 0.8;
 /// Travel time ahead of the current progress over which the speed profile is read, s
@@ -275,11 +278,9 @@ impl RouteFollower {
             return TwistCommand::default();
         }
         let c = self.cfg.clone();
-        let found = self.route.closest_progress(
-            &state.xy,
-            self.progress_m,
-            crate::motion::kinematic::PROGRESS_WINDOW_M,
-        );
+        let found = self
+            .route
+            .closest_progress(&state.xy, self.progress_m, PROGRESS_WINDOW_M);
         // Never past the end of the current leg (the robot may overshoot a cusp).
         self.progress_m = self.progress_m.max(found).min(self.next_stop_m());
         let speed = state.velocity.norm();

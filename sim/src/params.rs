@@ -445,6 +445,21 @@ pub struct SensorsParams {
 }
 default_from_section!(SensorsParams, "sensors");
 
+/// Named camera devices (their datasheet geometry: `CameraProfile::spec` in
+/// [`crate::render::camera`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CameraProfile {
+    /// Intel RealSense D435 depth stream (left IR imager geometry).
+    D435Depth,
+    /// Intel RealSense D435 colour stream (OV2740).
+    D435Color,
+    /// Stereolabs ZED 2i, 2.1 mm lenses, rectified left image.
+    Zed2i,
+    /// Stereolabs ZED X Mini, 2.2 mm lenses, raw left image (tag camera).
+    ZedXMini,
+}
+
 /// One `[[sensors.cameras]]` entry. Optional values default to the profile's datasheet
 /// values.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -453,7 +468,7 @@ pub struct CameraParams {
     /// Name; topics are `/<name>/...` and its random streams `sensors.camera.<name>.*`.
     pub name: String,
     /// Camera model.
-    pub profile: crate::render::camera::CameraProfile,
+    pub profile: CameraProfile,
     /// Optical frame (URDF link; the left one of a stereo pair).
     pub frame: String,
     /// Right optical frame of a stereo pair: both images are rendered and published.

@@ -15,7 +15,7 @@ use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 use vinebench_msgs::{Nanos, Trajectory};
 
-use crate::slam::loop_closing::{LoopClosure, LoopSource};
+use vinebench_onboard::slam::loop_closing::{LoopClosure, LoopSource};
 
 /// Ground-truth sampling step of the revisit search.
 const REVISIT_STEP: Nanos = Nanos(200_000_000);
@@ -246,9 +246,9 @@ pub fn loops_csv(sources: &[(&str, &LoopScore)], t0: Nanos) -> String {
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
-    use crate::slam::loop_closing::LoopSource;
     use nalgebra::{Translation3, UnitQuaternion, Vector3};
     use vinebench_msgs::PoseSample;
+    use vinebench_onboard::slam::loop_closing::LoopSource;
 
     /// A 1 m/s drive: east 10 m, north 4 m, west 10 m, south 4 m, then east 3 m again
     /// (the start revisited facing the same way), sampled at 10 Hz.

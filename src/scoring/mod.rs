@@ -7,10 +7,12 @@
 //! - [`map`]: a mapper's cloud against the world's true surfaces (accuracy, completeness,
 //!   chamfer, F-score).
 //! - [`plots`]: SVG plots of trajectories, errors over time and altitude.
+//! - [`expect`]: the expectation language of scenario files (what must hold for a pass).
 //!
 //! `scripts/evo_crosscheck.py` prints evo's numbers for two TUM files, to compare.
 
 pub mod align;
+pub mod expect;
 pub mod loops;
 pub mod map;
 pub mod metrics;

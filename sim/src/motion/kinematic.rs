@@ -106,9 +106,7 @@ use vinebench_msgs::Nanos;
 
 /// Half-width of the central differences giving `n̈` and the angular acceleration, s.
 pub const EXPANSION_STEP_S: f64 = 1e-3;
-/// Half-width of the arc-length window in which progress along the route is searched
-/// around its previous value, m. The robot moves about 2 cm per controller tick.
-pub const PROGRESS_WINDOW_M: f64 = 1.0;
+pub use crate::control::PROGRESS_WINDOW_M;
 /// The robot stops when the remaining route is within its roll-out distance plus this, m.
 const STOP_TOLERANCE_M: f64 = 0.005;
 /// Below this horizontal speed (and yaw rate in rad/s) a stopping robot counts as stopped.

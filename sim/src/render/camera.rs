@@ -593,20 +593,9 @@ pub enum D435DepthMode {
     W640H480,
 }
 
-/// Named camera devices.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum CameraProfile {
-    /// Intel RealSense D435 depth stream (left IR imager geometry).
-    D435Depth,
-    /// Intel RealSense D435 colour stream (OV2740).
-    D435Color,
-    /// Stereolabs ZED 2i, 2.1 mm lenses, rectified left image.
-    Zed2i,
-    /// Stereolabs ZED X Mini, 2.2 mm lenses, raw left image (tag camera).
-    ZedXMini,
-}
+pub use crate::params::CameraProfile;
 
+/// The datasheet geometry of each named camera device.
 impl CameraProfile {
     /// The profile's default mode; see the [`CameraSpec`] constructors for the numbers and
     /// their sources.

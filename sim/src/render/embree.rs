@@ -1409,7 +1409,8 @@ mod tests {
 
     #[test]
     fn depth_matches_the_default_backend() {
-        use crate::render::trace::{build_default, synthetic_vegetation_scene};
+        use crate::render::build_default;
+        use crate::render::trace::synthetic_vegetation_scene;
         let scene = synthetic_vegetation_scene(3, 200_000);
         let embree = EmbreeCaster::new(&scene).expect("embree");
         let bvh = build_default(&scene);
@@ -1539,9 +1540,8 @@ mod throughput {
     //! Benchmarks, ignored by default: `cargo test --release -p vinebench-sim --features
     //! embree --lib render::embree::throughput -- --ignored --nocapture --test-threads=1`.
     use super::*;
-    use crate::render::trace::{
-        build_default, measure_mrays, measure_mrays_single, synthetic_vegetation_scene,
-    };
+    use crate::render::build_default;
+    use crate::render::trace::{measure_mrays, measure_mrays_single, synthetic_vegetation_scene};
     use std::time::Instant;
 
     /// The project's benchmark ([`measure_mrays`], rayon over tiles) for Embree and the

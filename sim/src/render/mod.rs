@@ -1,7 +1,9 @@
 //! Rendering: camera images of the vineyard by CPU ray casting.
 //!
-//! - [`trace`]: the ray-casting seam ([`RayCaster`]) and its default pure-Rust backend, a
-//!   two-level wide BVH traversed with common-origin ray packets.
+//! - [`trace`]: the ray-casting seam ([`RayCaster`], ray packets and hits) and the
+//!   synthetic vegetation scene its throughput is measured on.
+//! - [`bvh`]: the default pure-Rust backend ([`build_default`]), a two-level wide BVH
+//!   traversed with common-origin ray packets; `embree` (cargo feature) the other one.
 //! - [`camera`]: pinhole cameras with Brown-Conrady distortion, camera profiles, the
 //!   D435 depth error model and image noise.
 //!
@@ -22,6 +24,11 @@ pub mod texture;
 pub mod trace;
 
 pub use trace::{Hit, RayCaster, RayPacket};
+
+/// Builds the default backend for a scene: the two-level wide BVH of [`bvh`] (name `bvh`).
+pub fn build_default(scene: &TraceScene) -> Box<dyn RayCaster> {
+    Box::new(bvh::TwoLevelBvh::build(scene))
+}
 
 /// A triangle mesh in its own frame, as the ray caster sees it.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -142,7 +149,7 @@ pub fn build_renderer_with_mesh(
         None => scene::build(world, &opts),
     };
     let caster: Box<dyn RayCaster> = match p.backend {
-        RenderBackend::Bvh => trace::build_default(&scene.trace),
+        RenderBackend::Bvh => build_default(&scene.trace),
         #[cfg(feature = "embree")]
         RenderBackend::Embree => {
             Box::new(embree::EmbreeCaster::new(&scene.trace).map_err(|e| {

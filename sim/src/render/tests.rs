@@ -4,7 +4,7 @@ use super::camera::{CameraSpec, DepthScratch, Intrinsics, StereoDepthNoise, look
 use super::scene::{self, Material, RenderScene, ShadingMesh};
 use super::shade::{Frame, Lighting, Renderer, ShadowMap};
 use super::texture::grvi;
-use super::{Affine3, Instance, MeshGeometry, TraceScene, trace};
+use super::{Affine3, Instance, MeshGeometry, TraceScene};
 use crate::params::{RenderParams, RowPlacement, TagParams, WorldParams};
 use crate::world::World;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
@@ -53,7 +53,7 @@ fn plane_scene(h: f32, z: f32, material: Material) -> RenderScene {
 }
 
 fn renderer(scene: RenderScene) -> Renderer {
-    let caster = trace::build_default(&scene.trace);
+    let caster = crate::render::build_default(&scene.trace);
     Renderer::new(scene, caster, lighting(), 0.05, 7)
 }
 
@@ -355,7 +355,7 @@ fn the_shadow_map_darkens_exactly_the_ground_under_the_roof() {
     sc.normal_from_mesh.push(sc.normal_from_mesh[0]);
     sc.instance_tag.push(u32::MAX);
     sc.caster_bounds = ([-4.0, -4.0, -0.1], [4.0, 4.0, 1.1]);
-    let caster = trace::build_default(&sc.trace);
+    let caster = crate::render::build_default(&sc.trace);
     let to_sun = Lighting::sun_direction(135.0, 50.0);
     let cell = 0.07;
     let map = ShadowMap::bake(&sc, caster.as_ref(), to_sun, cell);
@@ -484,7 +484,7 @@ fn occluder_boxes_and_tag_boards_stand_where_the_scenario_puts_them() {
             terrain_cell_m: 0.25,
         },
     );
-    let caster = trace::build_default(&s.trace);
+    let caster = crate::render::build_default(&s.trace);
     let material_hit = |from: Vector3<f64>, dir: Vector3<f64>| {
         let o = from - s.trace.origin_in_world;
         let hit = caster.cast_ray(

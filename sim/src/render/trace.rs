@@ -4,7 +4,6 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use super::bvh::TwoLevelBvh;
 use super::{Affine3, Instance, MeshGeometry, TraceScene};
 
 /// Rays per packet: an 8×8 pixel tile.
@@ -71,12 +70,6 @@ pub trait RayCaster: Send + Sync {
     fn cast_ray(&self, origin: [f32; 3], dir: [f32; 3], t_min: f32, t_max: f32) -> Hit;
     /// Bytes held by the acceleration structure (not counting the scene itself).
     fn memory_bytes(&self) -> usize;
-}
-
-/// Builds the default backend for a scene: the two-level wide BVH of [`super::bvh`]
-/// (name `bvh`).
-pub fn build_default(scene: &TraceScene) -> Box<dyn RayCaster> {
-    Box::new(TwoLevelBvh::build(scene))
 }
 
 /// Rows of [`synthetic_vegetation_scene`].
@@ -430,8 +423,9 @@ fn measure(
 #[cfg(test)]
 #[allow(clippy::needless_range_loop)]
 mod tests {
-    use super::super::bvh::brute_force_ray;
     use super::*;
+    use crate::render::build_default;
+    use crate::render::bvh::{TwoLevelBvh, brute_force_ray};
 
     /// Small deterministic generator for tests.
     struct Lcg(u64);

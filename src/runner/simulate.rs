@@ -1,150 +1,33 @@
-//! The scenario runner: world → motion → sensors → estimators → scoring → run folder.
-//!
-//! [`simulate`] is the pure part (no files): it builds the world, robot, route, motion
-//! model, sensors and estimators from a scenario and steps them in time order. Sensor
-//! messages reach the estimators in *arrival* order (stamp + latency), as on a robot.
-//! [`run`] adds the outputs: the run folder with TUM files, report, plots and
-//! `recording.mcap` (every message, ground truth and estimate; see [`crate::recording`]).
+//! The pure part of a run: [`setup`] builds the world, robot, route, motion model, sensors,
+//! estimators, SLAM and mapper from a scenario; [`simulate`] steps them in time order.
+//! Sensor messages reach the onboard algorithms in *arrival* order (stamp + latency), as
+//! on a robot, and are handed to the recording (when one is open) in the same order.
 
-use crate::estimator::{EstimatorError, EstimatorOutput, EstimatorSet, SensorFrames, StageStats};
-use crate::expect::{ExpectationResult, ROBOT_METRICS, ROBOT_SOURCE};
-use crate::recording::{self, RecordItem, Recorder, RecordingError, SinkOptions};
-use crate::report::{self, Report, RobotReport};
+use super::outcome::{MotionComparison, RobotReport, RunError, Simulation, TimeLimit, io_err};
+use crate::recording::{self, RecordItem, Recorder};
 use crate::scenario::{LoadedScenario, ScenarioError};
-use crate::scoring::{self, SourceScore};
-use indicatif::{ProgressBar, ProgressStyle};
+use crate::scoring::expect::ROBOT_METRICS;
+use indicatif::ProgressBar;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use rayon::prelude::*;
-use serde::Serialize;
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BinaryHeap};
-use std::io::IsTerminal;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Instant;
-use thiserror::Error;
 use vinebench_msgs::geodesy::{LocalEnu, normal_gravity};
 use vinebench_msgs::{Nanos, PoseSample, TimedMessage, Trajectory};
+use vinebench_onboard::estimator::{EstimatorError, EstimatorSet, SensorFrames};
 use vinebench_sim::motion::{
-    Dynamic, KinematicSkidSteer, MotionModel, MotionOutcome, RobotMetrics, RouteTracking,
+    Dynamic, KinematicSkidSteer, MotionModel, MotionOutcome, RouteTracking,
 };
 use vinebench_sim::params::{HeadingMode, MotionModelKind};
 use vinebench_sim::physics::rapier::{HeightGrid, MIN_HEIGHTFIELD_CELL_M, obstacles_of};
-use vinebench_sim::physics::{CollisionEvent, RapierPhysics, Scene};
+use vinebench_sim::physics::{RapierPhysics, Scene};
 use vinebench_sim::render::shade::Renderer;
-use vinebench_sim::robot::{RobotError, RobotModel};
+use vinebench_sim::robot::RobotModel;
 use vinebench_sim::route::build_route;
 use vinebench_sim::sensors::{SensorContext, SensorModel, build_cameras, build_sensors};
 use vinebench_sim::world::World;
-
-/// A run that could not be carried out.
-#[derive(Debug, Error)]
-pub enum RunError {
-    /// The scenario asks for something impossible (located in the scenario file).
-    #[error(transparent)]
-    Scenario(#[from] ScenarioError),
-    /// The robot description is unusable.
-    #[error(transparent)]
-    Robot(#[from] RobotError),
-    /// The recording could not be written.
-    #[error(transparent)]
-    Recording(#[from] RecordingError),
-    /// The mapper could not build or write a map.
-    #[error("mapper: {0}")]
-    Mapper(#[from] crate::mapper::MapperError),
-    /// The visual SLAM could not use its input.
-    #[error("visual SLAM: {0}")]
-    Slam(#[from] crate::slam::SlamError),
-    /// The run was interrupted (Ctrl-C); the recording so far is finalized.
-    #[error("interrupted after {simulated_s:.1} s simulated")]
-    Interrupted {
-        /// Simulated time when the run stopped, s.
-        simulated_s: f64,
-    },
-    /// Writing the run folder failed.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file or folder.
-        path: String,
-        /// The I/O error.
-        source: std::io::Error,
-    },
-}
-
-/// Maps an I/O error on `path` to [`RunError::Io`] naming the file.
-pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RunError + '_ {
-    move |source| RunError::Io {
-        path: path.display().to_string(),
-        source,
-    }
-}
-
-/// What a simulation produced, before scoring.
-#[derive(Debug)]
-pub struct Simulation {
-    /// Ground truth of the body frame at the scenario's ground-truth rate.
-    pub truth: Trajectory,
-    /// One output per estimator, in the order of `[estimators] run`, then `slam` when
-    /// `[slam]` runs.
-    pub estimates: Vec<EstimatorOutput>,
-    /// What the visual SLAM and its baselines produced (their trajectories are also in
-    /// `estimates`).
-    pub slam: Vec<crate::slam::SlamOutput>,
-    /// Counters of the estimation stage (late and invalid messages).
-    pub stage: StageStats,
-    /// Messages produced, per topic.
-    pub messages: BTreeMap<String, u64>,
-    /// SHA-256 of the generated world.
-    pub world_digest: String,
-    /// Distance travelled by the robot, m.
-    pub distance_m: f64,
-    /// Simulated duration, s.
-    pub duration_s: f64,
-    /// True when the route was completed (false: stopped by `max_duration_s`, the safety
-    /// limit, or because the robot got stuck).
-    pub route_completed: bool,
-    /// How the motion ended.
-    pub outcome: MotionOutcome,
-    /// Contacts of the robot with posts, trunks or the ground (chassis).
-    pub collisions: Vec<CollisionEvent>,
-    /// The time limit that ended the run before the motion finished (`None`: the motion
-    /// finished, completed or stuck).
-    pub stopped_by: Option<TimeLimit>,
-    /// Truth-only metrics of the robot's run against its route, from every ground-truth
-    /// sample.
-    pub robot: RobotMetrics,
-    /// Fault windows in absolute time.
-    pub fault_windows: Vec<(Nanos, Nanos)>,
-    /// The maps of `[mapper]` with what scoring needs (`None` when mapping is off).
-    pub mapping: Option<crate::mapping::MappingOutput>,
-    /// The same route on the motion models of `motion.compare_with`.
-    pub comparisons: Vec<MotionComparison>,
-}
-
-/// The run's route driven by another motion model (`motion.compare_with`, e.g. the other
-/// physics engine): same robot, world, start, controller and stop rules, no sensors.
-#[derive(Clone, Debug, Serialize)]
-pub struct MotionComparison {
-    /// The other motion model.
-    pub model: MotionModelKind,
-    /// Its ground truth, at the scenario's ground-truth rate.
-    #[serde(skip)]
-    pub truth: Trajectory,
-    /// How its motion ended.
-    pub outcome: MotionOutcome,
-    /// Its simulated duration, s.
-    pub duration_s: f64,
-    /// Distance it travelled, m.
-    pub distance_m: f64,
-    /// Horizontal distance between its end position and the run's, m.
-    pub end_gap_m: f64,
-    /// Its end heading minus the run's, wrapped to (-180, 180], degrees.
-    pub end_heading_deg: f64,
-    /// The farthest any position of the run lies from this model's path (nearest of its
-    /// positions, horizontal), m.
-    pub max_path_separation_m: f64,
-}
 
 /// Drives `motion` along its route like the main loop (ground-truth samples at
 /// `gt_rate_hz` from `start` until it finishes, `hard_stop` passes or its own safety
@@ -217,61 +100,6 @@ fn drive_comparison(
     }
 }
 
-/// A time limit that ends a simulation whose motion has not finished.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum TimeLimit {
-    /// The scenario's `max_duration_s`.
-    MaxDuration,
-    /// The safety limit: three times the expected duration plus 60 s.
-    Safety,
-}
-
-/// What a run is judged on: the scores of the estimate sources and the robot's own run.
-#[derive(Clone, Debug)]
-pub struct Scores {
-    /// One score per estimate source, in the order of `[estimators] run`.
-    pub sources: Vec<(String, SourceScore)>,
-    /// The robot's own run (the expectations' pseudo-source `robot`).
-    pub robot: RobotReport,
-    /// One map score per mapped source (empty when `[mapper]` is off).
-    pub maps: Vec<crate::mapping::MapReport>,
-    /// The SLAM metrics of each SLAM source (empty when `[slam]` is off).
-    pub slam: Vec<(String, BTreeMap<String, f64>)>,
-    /// The loop closures of each SLAM source, checked against ground truth.
-    pub loops: Vec<(String, scoring::loops::LoopScore)>,
-}
-
-impl Scores {
-    /// The value of `metric` of `source` (an estimate source or `robot`), if it has one.
-    pub fn metric(&self, metric: &str, source: &str) -> Option<f64> {
-        if source == ROBOT_SOURCE {
-            return self.robot.metric(metric);
-        }
-        if crate::expect::SLAM_METRICS
-            .iter()
-            .any(|(m, _)| *m == metric)
-        {
-            return self
-                .slam
-                .iter()
-                .find(|(n, _)| n == source)
-                .and_then(|(_, m)| m.get(metric).copied());
-        }
-        if crate::mapping::is_map_metric(metric) {
-            return self
-                .maps
-                .iter()
-                .find(|m| m.source == source)
-                .and_then(|m| m.metric(metric));
-        }
-        self.sources
-            .iter()
-            .find(|(n, _)| n == source)
-            .and_then(|(_, s)| s.metric(metric))
-    }
-}
-
 /// A message between its production and its arrival at the estimators, ordered by
 /// arrival time and then production order (deterministic ties).
 struct InFlight {
@@ -301,52 +129,6 @@ impl Ord for InFlight {
     }
 }
 
-/// The recording in a run folder.
-pub const RECORDING_FILE: &str = "recording.mcap";
-
-/// Options of [`run`].
-#[derive(Clone, Debug)]
-pub struct RunOptions {
-    /// Output folder; `None` = `<runs_root>/<name>-<UTC stamp>/`.
-    pub out_dir: Option<PathBuf>,
-    /// Parent of default output folders.
-    pub runs_root: PathBuf,
-    /// Show a progress bar on stderr (only when it is a terminal).
-    pub progress: bool,
-    /// Set (by a Ctrl-C handler) to stop the run cleanly: the simulation ends at its next
-    /// step and the recording is finalized.
-    pub stop: Option<Arc<AtomicBool>>,
-}
-
-impl Default for RunOptions {
-    fn default() -> Self {
-        RunOptions {
-            out_dir: None,
-            runs_root: PathBuf::from("runs"),
-            progress: true,
-            stop: None,
-        }
-    }
-}
-
-/// The outcome of [`run`].
-#[derive(Debug)]
-pub struct RunOutcome {
-    /// The run folder.
-    pub dir: PathBuf,
-    /// The report (also written as `report.json` and `report.md`).
-    pub report: Report,
-    /// Wall-clock seconds the simulation took.
-    pub wall_s: f64,
-}
-
-impl RunOutcome {
-    /// True when every expectation holds.
-    pub fn passed(&self) -> bool {
-        self.report.passed
-    }
-}
-
 /// Everything a simulation needs, built and validated from a scenario.
 pub struct Setup {
     /// The generated vineyard.
@@ -371,11 +153,11 @@ pub struct Setup {
     /// When set, the simulation stops at its next step with [`RunError::Interrupted`].
     pub stop: Option<Arc<AtomicBool>>,
     /// The mappers of `[mapper]` (`None` when mapping is off).
-    pub mapping: Option<crate::mapping::MappingStage>,
+    pub mapping: Option<crate::runner::mapping::MappingStage>,
     /// The other motion models of `motion.compare_with`, at rest at the start.
     pub comparisons: Vec<(MotionModelKind, Box<dyn MotionModel>)>,
     /// The visual SLAM of `[slam]` and its baselines (empty when it is off).
-    pub slam: Vec<crate::slam::VisualSlam>,
+    pub slam: Vec<vinebench_onboard::slam::VisualSlam>,
     /// When set, every message is also sent here as it is delivered, in delivery order
     /// (`vinebench bench` feeds the same stream to the SLAM again); `None` from [`setup`].
     pub tap: Option<std::sync::mpsc::Sender<vinebench_msgs::Message>>,
@@ -397,8 +179,8 @@ pub fn load_world_mesh(
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase());
     let mesh = match ext.as_deref() {
-        Some("ply") => crate::mapper::ply::read_mesh(&path),
-        Some("obj") => crate::mapper::export::read_obj(&path),
+        Some("ply") => vinebench_onboard::mapper::ply::read_mesh(&path),
+        Some("obj") => vinebench_onboard::mapper::export::read_obj(&path),
         _ => {
             return Err(sc.field_error(
                 "world.mesh.file",
@@ -524,7 +306,8 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
             tracking_camera: &s.sensors.tracking_camera.frame,
         })
         .map_err(estimator_error)?;
-    let mapping = crate::mapping::MappingStage::from_scenario(sc, &robot.static_transforms, None)?;
+    let mapping =
+        crate::runner::mapping::MappingStage::from_scenario(sc, &robot.static_transforms, None)?;
     let slam = slam_from_scenario(sc, &robot.static_transforms, Some(&world))?;
     Ok(Setup {
         world,
@@ -552,7 +335,7 @@ pub fn slam_from_scenario(
     sc: &LoadedScenario,
     static_transforms: &vinebench_msgs::StaticTransforms,
     world: Option<&World>,
-) -> Result<Vec<crate::slam::VisualSlam>, RunError> {
+) -> Result<Vec<vinebench_onboard::slam::VisualSlam>, RunError> {
     let s = &sc.scenario;
     if !s.slam.enabled {
         return Ok(Vec::new());
@@ -600,7 +383,7 @@ pub fn slam_from_scenario(
         let read = std::fs::File::open(&path)
             .map_err(|e| e.to_string())
             .and_then(|f| {
-                crate::slam::bow::Vocabulary::read(std::io::BufReader::new(f))
+                vinebench_onboard::slam::bow::Vocabulary::read(std::io::BufReader::new(f))
                     .map_err(|e| e.to_string())
             });
         match read {
@@ -639,8 +422,13 @@ pub fn slam_from_scenario(
         .runs()
         .into_iter()
         .map(|(source, cfg)| {
-            crate::slam::VisualSlam::new(source, cfg, static_transforms.clone(), vocabulary.clone())
-                .map_err(|e| sc.field_error("slam", e.to_string()).into())
+            vinebench_onboard::slam::VisualSlam::new(
+                source,
+                cfg,
+                static_transforms.clone(),
+                vocabulary.clone(),
+            )
+            .map_err(|e| sc.field_error("slam", e.to_string()).into())
         })
         .collect()
 }
@@ -648,7 +436,11 @@ pub fn slam_from_scenario(
 /// A simulated survey of `world`'s tag boards into `cfg.surveyed_tags` (entries the
 /// scenario lists keep their poses): each pose perturbed by `survey_sigma_m` and
 /// `survey_sigma_rad` (per axis) drawn from the stream `tag_survey` of `seed`.
-fn survey_tags(cfg: &mut crate::slam::loop_closing::LoopConfig, world: &World, seed: u64) {
+fn survey_tags(
+    cfg: &mut vinebench_onboard::slam::loop_closing::LoopConfig,
+    world: &World,
+    seed: u64,
+) {
     use rand_distr::{Distribution, StandardNormal};
     let mut rng = vinebench_sim::rng::stream(seed, "tag_survey");
     for board in &world.tags {
@@ -662,10 +454,9 @@ fn survey_tags(cfg: &mut crate::slam::loop_closing::LoopConfig, world: &World, s
             nalgebra::Translation3::from(board.world_from_tag.translation.vector + dt),
             nalgebra::UnitQuaternion::from_scaled_axis(dr) * board.world_from_tag.rotation,
         );
-        cfg.surveyed_tags
-            .push(crate::slam::loop_closing::SurveyedTag::from_pose(
-                board.id, &surveyed,
-            ));
+        cfg.surveyed_tags.push(
+            vinebench_onboard::slam::loop_closing::SurveyedTag::from_pose(board.id, &surveyed),
+        );
     }
 }
 
@@ -734,23 +525,6 @@ fn motion_model(
     })
 }
 
-/// The progress bar of a scenario's simulation (seconds simulated), on a terminal and when
-/// `enabled`.
-pub fn progress_bar(sc: &LoadedScenario, enabled: bool) -> Option<ProgressBar> {
-    (enabled && std::io::stderr().is_terminal()).then(|| {
-        let pb = ProgressBar::new(1);
-        pb.set_style(
-            ProgressStyle::with_template(
-                "{prefix} [{bar:40.green/dim}] {pos}/{len} s simulated ({per_sec}, eta {eta})",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-        );
-        pb.set_prefix(sc.scenario.name.clone());
-        pb
-    })
-}
-
 /// Checks that a scenario can be set up (world, robot, route, sensors, estimators)
 /// without running it.
 pub fn validate(sc: &LoadedScenario) -> Result<(), RunError> {
@@ -771,8 +545,8 @@ pub fn simulate(
 fn deliver(
     tm: TimedMessage,
     estimators: &mut EstimatorSet,
-    mapping: &mut Option<crate::mapping::MappingStage>,
-    slam: &mut [crate::slam::VisualSlam],
+    mapping: &mut Option<crate::runner::mapping::MappingStage>,
+    slam: &mut [vinebench_onboard::slam::VisualSlam],
     tap: Option<&std::sync::mpsc::Sender<vinebench_msgs::Message>>,
     recorder: &mut Option<Recorder>,
 ) -> Result<(), RunError> {
@@ -817,7 +591,8 @@ pub fn simulate_setup(
         tap,
         ..
     } = built;
-    let mut png = png_dir.map(|d| crate::images::PngDump::new(&d, s.render.debug_png_every));
+    let mut png =
+        png_dir.map(|d| crate::runner::images::PngDump::new(&d, s.render.debug_png_every));
     let start = sc.start;
 
     // Stop conditions: the route's end, the scenario's hard stop, or a safety limit of
@@ -938,8 +713,9 @@ pub fn simulate_setup(
     }
     let out = estimators.finish();
     let (mut estimates, stage) = (out.estimators, out.stage);
-    let slam: Vec<crate::slam::SlamOutput> = slam.into_iter().map(|v| v.finish()).collect();
-    estimates.extend(slam.iter().map(crate::slam::estimator_output));
+    let slam: Vec<vinebench_onboard::slam::SlamOutput> =
+        slam.into_iter().map(|v| v.finish()).collect();
+    estimates.extend(slam.iter().map(vinebench_onboard::slam::estimator_output));
     let mapping = match (mapping, renderer) {
         (Some(m), Some(truth)) => Some(m.finish(&estimates, Some(truth))?),
         _ => None,
@@ -1044,184 +820,9 @@ fn run_metadata(sim: &Simulation) -> BTreeMap<String, String> {
 }
 
 /// Scores every estimate against the truth (in parallel; each source is independent,
-/// so the result does not depend on the thread count), and the robot's own run.
-pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Scores {
-    let sources = sim
-        .estimates
-        .par_iter()
-        .map(|e| {
-            (
-                e.name.to_string(),
-                scoring::score_source(
-                    &sim.truth,
-                    &e.trajectory,
-                    &sc.scenario.scoring,
-                    &sim.fault_windows,
-                ),
-            )
-        })
-        .collect();
-    let th = sc.scenario.scoring.loop_thresholds();
-    let loops: Vec<(String, scoring::loops::LoopScore)> = sim
-        .slam
-        .iter()
-        .map(|o| {
-            (
-                o.source.to_string(),
-                scoring::loops::score_loops(&o.loops, &sim.truth, &th),
-            )
-        })
-        .collect();
-    Scores {
-        sources,
-        robot: RobotReport::new(sim),
-        maps: sim
-            .mapping
-            .as_ref()
-            .map(crate::mapping::score)
-            .unwrap_or_default(),
-        slam: sim
-            .slam
-            .iter()
-            .zip(&loops)
-            .map(|(o, (_, l))| {
-                let metrics = crate::expect::SLAM_METRICS
-                    .iter()
-                    .filter_map(|(m, _)| {
-                        o.metric(m)
-                            .or_else(|| l.metric(m))
-                            .map(|v| (m.to_string(), v))
-                    })
-                    .collect();
-                (o.source.to_string(), metrics)
-            })
-            .collect(),
-        loops,
-    }
-}
 
-/// Evaluates the scenario's expectations on the scores of the estimate sources and the
-/// robot's own run.
-pub fn evaluate(sc: &LoadedScenario, scores: &Scores) -> Vec<ExpectationResult> {
-    sc.expectations
-        .iter()
-        .map(|x| x.evaluate(|metric, source| scores.metric(metric, source)))
-        .collect()
-}
-
-/// Runs a scenario end to end and writes its run folder.
-pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunError> {
-    // Every parameter is checked before anything is written.
-    let mut built = setup(sc)?;
-    let dir = match &opts.out_dir {
-        Some(d) => d.clone(),
-        None => opts
-            .runs_root
-            .join(format!("{}-{}", sc.scenario.name, utc_stamp())),
-    };
-    std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
-    if sc.scenario.render.debug_png_every > 0 && built.renderer.is_some() {
-        built.png_dir = Some(dir.join("images"));
-    }
-    let resolved = dir.join("scenario.resolved.toml");
-    std::fs::write(&resolved, sc.resolved_toml()).map_err(io_err(&resolved))?;
-    built.recorder = Some(Recorder::create(
-        &dir.join(RECORDING_FILE),
-        &SinkOptions::from_params(&sc.scenario.recording),
-    )?);
-    built.stop = opts.stop.clone();
-
-    let bar = progress_bar(sc, opts.progress);
-    let t0 = Instant::now();
-    let sim = simulate_setup(sc, built, bar.as_ref());
-    let wall_s = t0.elapsed().as_secs_f64();
-    if let Some(pb) = &bar {
-        pb.finish_and_clear();
-    }
-    let sim = sim?;
-
-    let gt_path = dir.join("ground_truth.tum");
-    scoring::tum::write_tum(&gt_path, &sim.truth).map_err(io_err(&gt_path))?;
-    for e in &sim.estimates {
-        let p = dir.join(format!("estimate_{}.tum", e.name));
-        scoring::tum::write_tum(&p, &e.trajectory).map_err(io_err(&p))?;
-    }
-    for c in &sim.comparisons {
-        let p = dir.join(format!("ground_truth_{}.tum", c.model.name()));
-        scoring::tum::write_tum(&p, &c.truth).map_err(io_err(&p))?;
-    }
-    let scores = score(sc, &sim);
-    if !sim.slam.is_empty() {
-        let t0 = sim.truth.samples.first().map_or(Nanos(0), |s| s.stamp);
-        let named: Vec<(&str, &scoring::loops::LoopScore)> =
-            scores.loops.iter().map(|(n, l)| (n.as_str(), l)).collect();
-        let p = dir.join("loops.csv");
-        std::fs::write(&p, scoring::loops::loops_csv(&named, t0)).map_err(io_err(&p))?;
-    }
-    let expectations = evaluate(sc, &scores);
-    let report = Report::new(sc, &sim, scores, expectations);
-    report::write(&dir, &sim, &report)?;
-    if let Some(m) = &sim.mapping {
-        crate::mapping::export(&dir, m)?;
-    }
-    let mut timing = serde_json::json!({
-        "wall_s": wall_s,
-        "simulated_s": sim.duration_s,
-        "real_time_factor": if wall_s > 0.0 { sim.duration_s / wall_s } else { f64::INFINITY },
-        "threads": rayon::current_num_threads(),
-    });
-    if let Some(m) = &sim.mapping {
-        // Part of wall_s: integrating frames during the run and finishing the maps.
-        timing["mapping_s"] = serde_json::json!(m.wall_s);
-    }
-    for o in &sim.slam {
-        // Part of wall_s: feature extraction, tracking and local BA of each SLAM.
-        timing[format!("{}_s", o.source)] = serde_json::json!(o.wall_s);
-        timing[format!("{}_frames_per_s", o.source)] =
-            serde_json::json!(o.stats.frames as f64 / o.wall_s.max(1e-9));
-        if !o.loops.is_empty() {
-            // Part of <source>_s: pose graph and global BA of each loop.
-            timing[format!("{}_loop_closing_s", o.source)] =
-                serde_json::json!(o.loops.iter().map(|l| l.wall_s).collect::<Vec<_>>());
-        }
-    }
-    let tp = dir.join("timing.json");
-    std::fs::write(&tp, format!("{timing:#}\n")).map_err(io_err(&tp))?;
-    Ok(RunOutcome {
-        dir,
-        report,
-        wall_s,
-    })
-}
-
-fn img_dir(d: &crate::images::PngDump) -> PathBuf {
+fn img_dir(d: &crate::runner::images::PngDump) -> PathBuf {
     d.dir().to_path_buf()
-}
-
-/// `YYYYMMDD-HHMMSS` of the current UTC time (names default run folders).
-pub(crate) fn utc_stamp() -> String {
-    let secs = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs() as i64)
-        .unwrap_or(0);
-    let days = secs.div_euclid(86_400);
-    let rem = secs.rem_euclid(86_400);
-    // Civil from days (Howard Hinnant).
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!(
-        "{y:04}{m:02}{d:02}-{:02}{:02}{:02}",
-        rem / 3600,
-        rem % 3600 / 60,
-        rem % 60
-    )
 }
 
 /// The MuJoCo motion model (`motion.model = "mujoco"`): the route follower of

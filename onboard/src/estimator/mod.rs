@@ -1,10 +1,9 @@
 //! Estimators: trajectories from sensor messages alone.
 //!
-//! **Ground-truth firewall.** This module and its children may use only
-//! `vinebench_msgs` (messages, frames, time, geodesy, trajectories), `nalgebra`, `serde`,
-//! `thiserror` and the standard library. They must run unchanged on a recording from a
-//! real robot. `tests/firewall.rs` enforces this by parsing every file under
-//! `src/estimator/`.
+//! **Ground-truth firewall.** Like all of `vinebench-onboard`, the estimators see only
+//! `vinebench_msgs` messages (the crate's dependency list allows nothing that reaches
+//! truth; `tests/firewall.rs` checks it), so they run unchanged on a real robot's
+//! recording.
 //!
 //! The stage the runner calls is [`EstimatorSet`]: messages in arrival order go in
 //! ([`EstimatorSet::push`]); each is validated, re-ordered by stamp ([`reorder`]) and fanned

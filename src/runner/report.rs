@@ -4,17 +4,17 @@
 //! timing goes to `timing.json` instead, so two runs of a scenario give byte-identical
 //! reports.
 
-use crate::expect::{ExpectationResult, ROBOT_METRICS};
-use crate::runner::{RunError, Scores, Simulation, TimeLimit, io_err};
+use super::outcome::{RobotReport, RunError, Simulation, io_err};
 use crate::scenario::LoadedScenario;
+use crate::scoring::expect::{ExpectationResult, ROBOT_METRICS, ROBOT_SOURCE};
 use crate::scoring::{self, ScoringParams, SourceScore, metrics};
+use rayon::prelude::*;
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::fmt::{self, Write as _};
+use std::fmt::Write as _;
 use std::path::Path;
 use vinebench_msgs::{Nanos, Trajectory};
-use vinebench_sim::motion::{MotionOutcome, RobotMetrics};
-use vinebench_sim::physics::{CollisionEvent, Obstacle};
+use vinebench_sim::physics::Obstacle;
 
 /// Collisions listed in `report.md` (all of them are in `report.json`).
 pub const MAX_COLLISION_ROWS: usize = 50;
@@ -40,7 +40,7 @@ pub struct Report {
     /// One entry per mapped source, in the order of `[mapper] sources` (absent when
     /// mapping is off).
     #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub maps: Vec<crate::mapping::MapReport>,
+    pub maps: Vec<crate::runner::mapping::MapReport>,
     /// The SLAM metrics of each SLAM source (absent when `[slam]` is off).
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub slam: BTreeMap<String, BTreeMap<String, f64>>,
@@ -91,156 +91,7 @@ pub struct RunInfo {
     pub fault_windows_s: Vec<(f64, f64)>,
 }
 
-/// How the robot's run ended.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
-pub enum RobotOutcome {
-    /// The route was completed (and the final stand-still held).
-    Completed {
-        /// End of the run, s after the start.
-        at_s: f64,
-    },
-    /// The robot made no progress along its route for `physics.stuck_timeout_s` while it
-    /// should have been driving.
-    Stuck {
-        /// When the run gave up, s after the start.
-        at_s: f64,
-        /// Arc length reached along the route, m.
-        progress_m: f64,
-    },
-    /// The scenario's `max_duration_s` ended the run before the route was completed.
-    MaxDuration {
-        /// End of the run, s after the start.
-        at_s: f64,
-        /// Arc length reached along the route, m.
-        progress_m: f64,
-    },
-    /// The safety limit (three times the expected duration plus 60 s) ended the run
-    /// before the route was completed.
-    SafetyLimit {
-        /// End of the run, s after the start.
-        at_s: f64,
-        /// Arc length reached along the route, m.
-        progress_m: f64,
-    },
-}
-
-impl fmt::Display for RobotOutcome {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            RobotOutcome::Completed { at_s } => write!(f, "completed at {at_s:.1} s"),
-            RobotOutcome::Stuck { at_s, progress_m } => {
-                write!(f, "stuck at {at_s:.1} s after {progress_m:.1} m")
-            }
-            RobotOutcome::MaxDuration { at_s, progress_m } => write!(
-                f,
-                "stopped by max_duration_s at {at_s:.1} s after {progress_m:.1} m"
-            ),
-            RobotOutcome::SafetyLimit { at_s, progress_m } => write!(
-                f,
-                "stopped by the safety limit at {at_s:.1} s after {progress_m:.1} m"
-            ),
-        }
-    }
-}
-
-/// The robot's own run: how it ended, what it hit and how closely it followed its route,
-/// all from ground truth. Answers the expectations' pseudo-source `robot`.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct RobotReport {
-    /// How the run ended.
-    pub outcome: RobotOutcome,
-    /// Whether the route was completed.
-    pub route_completed: bool,
-    /// Truth-only metrics against the route
-    /// ([`vinebench_sim::motion::tracking`] defines them).
-    pub metrics: RobotMetrics,
-    /// Contacts with posts, trunks or the ground (chassis), in time order.
-    pub collisions: Vec<CollisionEvent>,
-    /// The same route on the motion models of `motion.compare_with`.
-    pub comparisons: Vec<ComparisonReport>,
-}
-
-/// The route driven by another motion model (`motion.compare_with`), against the run.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct ComparisonReport {
-    /// The other motion model (`motion.model` name).
-    pub model: String,
-    /// Whether it completed the route.
-    pub completed: bool,
-    /// Its simulated duration, s.
-    pub duration_s: f64,
-    /// Distance it travelled, m.
-    pub distance_m: f64,
-    /// Horizontal distance between its end position and the run's, m.
-    pub end_gap_m: f64,
-    /// Its end heading minus the run's, degrees.
-    pub end_heading_deg: f64,
-    /// The farthest a position of the run lies from its path, m.
-    pub max_path_separation_m: f64,
-}
-
-impl ComparisonReport {
-    fn new(c: &crate::runner::MotionComparison) -> ComparisonReport {
-        ComparisonReport {
-            model: c.model.name().to_string(),
-            completed: c.outcome == MotionOutcome::Completed,
-            duration_s: c.duration_s,
-            distance_m: c.distance_m,
-            end_gap_m: c.end_gap_m,
-            end_heading_deg: c.end_heading_deg,
-            max_path_separation_m: c.max_path_separation_m,
-        }
-    }
-}
-
 impl RobotReport {
-    /// The robot section of a simulation.
-    pub fn new(sim: &Simulation) -> RobotReport {
-        let at_s = sim.duration_s;
-        let progress_m = sim.robot.progress_m;
-        let outcome = match &sim.outcome {
-            MotionOutcome::Completed => RobotOutcome::Completed { at_s },
-            MotionOutcome::Stuck { at_s, progress_m } => RobotOutcome::Stuck {
-                at_s: *at_s,
-                progress_m: *progress_m,
-            },
-            MotionOutcome::Running => match sim.stopped_by {
-                Some(TimeLimit::MaxDuration) => RobotOutcome::MaxDuration { at_s, progress_m },
-                Some(TimeLimit::Safety) | None => RobotOutcome::SafetyLimit { at_s, progress_m },
-            },
-        };
-        RobotReport {
-            outcome,
-            route_completed: sim.route_completed,
-            metrics: sim.robot.clone(),
-            collisions: sim.collisions.clone(),
-            comparisons: sim.comparisons.iter().map(ComparisonReport::new).collect(),
-        }
-    }
-
-    /// A metric by its expectation name (one of [`ROBOT_METRICS`]); `None` for other
-    /// names.
-    pub fn metric(&self, name: &str) -> Option<f64> {
-        let m = &self.metrics;
-        match name {
-            "collisions" => Some(self.collisions.len() as f64),
-            "route_completed" => Some(if self.route_completed { 1.0 } else { 0.0 }),
-            "max_cross_track_m" => Some(m.max_cross_track_m),
-            "max_heading_error_deg" => Some(m.max_heading_error_deg),
-            "max_tilt_deg" => Some(m.max_tilt_deg),
-            "distance_m" => Some(m.distance_m),
-            "compare_end_gap_m" => self.largest(|c| c.end_gap_m),
-            "compare_path_separation_m" => self.largest(|c| c.max_path_separation_m),
-            _ => None,
-        }
-    }
-
-    /// The largest `f` over the comparisons (`None` without any).
-    fn largest(&self, f: impl Fn(&ComparisonReport) -> f64) -> Option<f64> {
-        self.comparisons.iter().map(f).reduce(f64::max)
-    }
-
     /// The Markdown section (`## Robot`).
     pub fn markdown(&self) -> String {
         let mut md = String::new();
@@ -643,7 +494,7 @@ fn slam_markdown(
 }
 
 /// The `## Maps` section: one row per mapped source.
-pub(crate) fn maps_markdown(maps: &[crate::mapping::MapReport]) -> String {
+pub(crate) fn maps_markdown(maps: &[crate::runner::mapping::MapReport]) -> String {
     let mut md = String::new();
     let _ = writeln!(
         md,
@@ -778,4 +629,114 @@ pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunErr
     }
     let mp = dir.join("report.md");
     std::fs::write(&mp, md).map_err(io_err(&mp))
+}
+
+/// What a run is judged on: the scores of the estimate sources and the robot's own run.
+#[derive(Clone, Debug)]
+pub struct Scores {
+    /// One score per estimate source, in the order of `[estimators] run`.
+    pub sources: Vec<(String, SourceScore)>,
+    /// The robot's own run (the expectations' pseudo-source `robot`).
+    pub robot: RobotReport,
+    /// One map score per mapped source (empty when `[mapper]` is off).
+    pub maps: Vec<crate::runner::mapping::MapReport>,
+    /// The SLAM metrics of each SLAM source (empty when `[slam]` is off).
+    pub slam: Vec<(String, BTreeMap<String, f64>)>,
+    /// The loop closures of each SLAM source, checked against ground truth.
+    pub loops: Vec<(String, scoring::loops::LoopScore)>,
+}
+
+impl Scores {
+    /// The value of `metric` of `source` (an estimate source or `robot`), if it has one.
+    pub fn metric(&self, metric: &str, source: &str) -> Option<f64> {
+        if source == ROBOT_SOURCE {
+            return self.robot.metric(metric);
+        }
+        if crate::scoring::expect::SLAM_METRICS
+            .iter()
+            .any(|(m, _)| *m == metric)
+        {
+            return self
+                .slam
+                .iter()
+                .find(|(n, _)| n == source)
+                .and_then(|(_, m)| m.get(metric).copied());
+        }
+        if crate::runner::mapping::is_map_metric(metric) {
+            return self
+                .maps
+                .iter()
+                .find(|m| m.source == source)
+                .and_then(|m| m.metric(metric));
+        }
+        self.sources
+            .iter()
+            .find(|(n, _)| n == source)
+            .and_then(|(_, s)| s.metric(metric))
+    }
+}
+
+/// so the result does not depend on the thread count), and the robot's own run.
+pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Scores {
+    let sources = sim
+        .estimates
+        .par_iter()
+        .map(|e| {
+            (
+                e.name.to_string(),
+                scoring::score_source(
+                    &sim.truth,
+                    &e.trajectory,
+                    &sc.scenario.scoring,
+                    &sim.fault_windows,
+                ),
+            )
+        })
+        .collect();
+    let th = sc.scenario.scoring.loop_thresholds();
+    let loops: Vec<(String, scoring::loops::LoopScore)> = sim
+        .slam
+        .iter()
+        .map(|o| {
+            (
+                o.source.to_string(),
+                scoring::loops::score_loops(&o.loops, &sim.truth, &th),
+            )
+        })
+        .collect();
+    Scores {
+        sources,
+        robot: RobotReport::new(sim),
+        maps: sim
+            .mapping
+            .as_ref()
+            .map(crate::runner::mapping::score)
+            .unwrap_or_default(),
+        slam: sim
+            .slam
+            .iter()
+            .zip(&loops)
+            .map(|(o, (_, l))| {
+                let metrics = crate::scoring::expect::SLAM_METRICS
+                    .iter()
+                    .filter_map(|(m, _)| {
+                        o.metric(m)
+                            .or_else(|| l.metric(m))
+                            .map(|v| (m.to_string(), v))
+                    })
+                    .collect();
+                (o.source.to_string(), metrics)
+            })
+            .collect(),
+        loops,
+    }
+}
+
+/// Evaluates the scenario's expectations on the scores of the estimate sources and the
+/// robot's own run.
+pub fn evaluate(sc: &LoadedScenario, scores: &Scores) -> Vec<ExpectationResult> {
+    sc.expectations
+        .iter()
+        .map(|x| x.evaluate(|metric, source| scores.metric(metric, source)))
+        .collect()
 }

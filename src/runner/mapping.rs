@@ -8,41 +8,19 @@
 //! The mappers see only what the estimators see (messages, `/tf_static`, estimated
 //! trajectories); the scene used for scoring is handed over only after the run.
 
-use crate::estimator::{EstimatorKind, EstimatorOutput, EstimatorSet};
-use crate::mapper::{
-    COLOR_SUFFIX, DEPTH_SUFFIX, INFO_SUFFIX, Map, Mapper, MapperError, MapperParams, MapperStats,
-};
 use crate::scenario::{LoadedScenario, ScenarioError};
 use crate::scoring::map::{MapScore, MapScoreParams, score_map};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 use vinebench_msgs::{Message, StaticTransforms};
+use vinebench_onboard::estimator::{EstimatorKind, EstimatorOutput, EstimatorSet};
+use vinebench_onboard::mapper::{
+    COLOR_SUFFIX, DEPTH_SUFFIX, INFO_SUFFIX, Map, Mapper, MapperError, MapperParams, MapperStats,
+};
 use vinebench_sim::render::camera::CameraProfile;
 use vinebench_sim::render::shade::Renderer;
-
-/// `[mapper]` of a scenario (every key documented in `scenarios/defaults.toml`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MappingParams {
-    /// Build maps at all.
-    pub enabled: bool,
-    /// Estimate sources to map with; the first is the main map (mesh and exports).
-    pub sources: Vec<EstimatorKind>,
-    /// `[mapper.map]`: how each map is built.
-    pub map: MapperParams,
-    /// `[mapper.scoring]`: how each map is scored.
-    pub scoring: MapScoreParams,
-}
-
-impl Default for MappingParams {
-    /// The values of `[mapper]` in `scenarios/defaults.toml`.
-    fn default() -> Self {
-        vinebench_msgs::defaults::section("mapper")
-            .expect("the embedded scenarios/defaults.toml is checked by tests")
-    }
-}
 
 /// Whether a scenario has a camera with an aligned depth image (what the mapper needs).
 pub fn scenario_has_depth_camera(sc: &LoadedScenario) -> bool {

@@ -11,9 +11,12 @@
 //!   rigid body, ground-contact model, motors), driving forward.
 //!
 //! The criterion benches (`cargo bench`) measure the same things with statistics;
-//! this command gives a quick table on any machine.
+//! this command gives a quick table on any machine. [`mapper`] and [`recording`] add the
+//! mapper's and the recording's figures (`--only mapper`, `--only recording`).
 
-use crate::estimator::ins::{InsCore, Mat15, NavState, ProcessNoise};
+pub mod mapper;
+pub mod recording;
+
 use crate::runner::{RunError, score, simulate};
 use crate::scenario::{LoadedScenario, ScenarioError};
 use nalgebra::{UnitQuaternion, Vector3};
@@ -21,6 +24,7 @@ use std::hint::black_box;
 use std::time::Instant;
 use thiserror::Error;
 use vinebench_msgs::defaults::DEFAULTS_TOML;
+use vinebench_onboard::estimator::ins::{InsCore, Mat15, NavState, ProcessNoise};
 
 /// Physics steps per timed run: 10 s of driving straight at 0.8 m/s, open loop, before
 /// the robot drifts into a row (contacts with trunks make steps about three times dearer).
@@ -446,17 +450,17 @@ pub fn shaded_frames_per_second(
     views.len() as f64 / best
 }
 
-/// The SLAM feature front-end ([`crate::slam::bench`]) on a rendered, rectified 752×480
+/// The SLAM feature front-end ([`vinebench_onboard::slam::bench`]) on a rendered, rectified 752×480
 /// stereo pair (93° HFOV, 12 cm baseline: the rover's ZED 2i-like cameras) at the first
 /// of [`bench_views`]: ORB extraction of one image, stereo matching of the pair, and the
 /// whole pair with the two extractions on two rayon tasks; best of `repeats`. Also the
 /// tracking's motion-only BA on synthetic observations
-/// ([`crate::slam::bench::time_motion_ba`]).
+/// ([`vinebench_onboard::slam::bench::time_motion_ba`]).
 pub fn slam_feature_figures(
     renderer: &vinebench_sim::render::shade::Renderer,
     repeats: usize,
 ) -> Result<Vec<Figure>, BenchError> {
-    use crate::slam::{FrontEndConfig, GrayImage, StereoCamera};
+    use vinebench_onboard::slam::{FrontEndConfig, GrayImage, StereoCamera};
     use vinebench_sim::render::camera::{BrownConrady, Intrinsics, linear_to_srgb_u8};
     use vinebench_sim::render::shade::Frame;
     let intr = Intrinsics::from_hfov(752, 480, 93.0, BrownConrady::NONE);
@@ -476,7 +480,7 @@ pub fn slam_feature_figures(
     };
     let left = grey(&left_pose)?;
     let right = grey(&(left_pose * nalgebra::Translation3::new(cam.baseline_m, 0.0, 0.0)))?;
-    let t = crate::slam::bench::time_front_end(
+    let t = vinebench_onboard::slam::bench::time_front_end(
         &FrontEndConfig::default(),
         &cam,
         &left,
@@ -484,7 +488,8 @@ pub fn slam_feature_figures(
         repeats * 10,
     )
     .map_err(|e| BenchError::Setup(e.to_string()))?;
-    let (motion_ba_ms, motion_ba_inliers) = crate::slam::bench::time_motion_ba(200, repeats * 10);
+    let (motion_ba_ms, motion_ba_inliers) =
+        vinebench_onboard::slam::bench::time_motion_ba(200, repeats * 10);
     let fig = |name, value, unit, target| Figure {
         name,
         value,
@@ -545,9 +550,9 @@ pub fn slam_feature_figures(
 }
 
 /// The tracked camera scenario (three RGB-D cameras), embedded.
-pub const CAMERA_ROW_TOML: &str = include_str!("../scenarios/camera-row.toml");
+pub const CAMERA_ROW_TOML: &str = include_str!("../../scenarios/camera-row.toml");
 /// The rover camera scenario (two stereo pairs and a tag camera), embedded.
-pub const ROVER_OCCLUDER_TOML: &str = include_str!("../scenarios/rover-occluder.toml");
+pub const ROVER_OCCLUDER_TOML: &str = include_str!("../../scenarios/rover-occluder.toml");
 
 /// The rendering figures: ray casting and shading speed on a 10-row × 120 m vineyard,
 /// renderer memory, and the real-time factor of both camera rigs.
@@ -670,7 +675,7 @@ pub fn render_figures(quick: bool) -> Result<Vec<Figure>, BenchError> {
 }
 
 /// The box-occluder SLAM scenario (two stereo pairs, a tag camera), embedded.
-pub const CSL_BOX_OCCLUDER_TOML: &str = include_str!("../scenarios/csl-box-occluder.toml");
+pub const CSL_BOX_OCCLUDER_TOML: &str = include_str!("../../scenarios/csl-box-occluder.toml");
 
 /// The stream a SLAM benchmark feeds: the first `seconds` of `scenarios/csl-box-occluder.toml`
 /// simulated once (without its SLAM), every delivered message kept in delivery order,
@@ -681,7 +686,7 @@ pub fn slam_bench_stream(
     (
         Vec<vinebench_msgs::Message>,
         vinebench_msgs::StaticTransforms,
-        crate::slam::SlamConfig,
+        vinebench_onboard::slam::SlamConfig,
     ),
     BenchError,
 > {
@@ -708,7 +713,7 @@ pub fn slam_bench_stream(
 /// order: feature extraction, stereo, tracking, keyframes, local BA, tags and loops
 /// included; the final `finish` not), best of `repeats`, and the frames tracked.
 pub fn slam_frames_per_second(
-    cfg: &crate::slam::SlamConfig,
+    cfg: &vinebench_onboard::slam::SlamConfig,
     messages: &[vinebench_msgs::Message],
     static_transforms: &vinebench_msgs::StaticTransforms,
     repeats: usize,
@@ -716,8 +721,8 @@ pub fn slam_frames_per_second(
     let mut best = f64::INFINITY;
     let mut frames = 0;
     for _ in 0..repeats.max(1) {
-        let mut slam = crate::slam::VisualSlam::new(
-            crate::slam::SLAM_SOURCE,
+        let mut slam = vinebench_onboard::slam::VisualSlam::new(
+            vinebench_onboard::slam::SLAM_SOURCE,
             cfg.clone(),
             static_transforms.clone(),
             None,
@@ -742,7 +747,7 @@ pub fn slam_tracking_figures(quick: bool) -> Result<Vec<Figure>, BenchError> {
     let (seconds, repeats) = if quick { (6.0, 1) } else { (15.0, 3) };
     let (messages, tf, cfg) = slam_bench_stream(seconds)?;
     let rig = &cfg;
-    let single = crate::slam::SlamBaseline::SingleCamera.config(&cfg);
+    let single = vinebench_onboard::slam::SlamBaseline::SingleCamera.config(&cfg);
     let (rig_fps, frames) = slam_frames_per_second(rig, &messages, &tf, repeats)?;
     let one = rayon::ThreadPoolBuilder::new()
         .num_threads(1)

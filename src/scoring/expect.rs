@@ -17,7 +17,7 @@
 //! from ground truth, always available, with the metrics of [`ROBOT_METRICS`].
 //!
 //! ```
-//! use vinebench::expect::Expectation;
+//! use vinebench::scoring::expect::Expectation;
 //! let e = Expectation::parse("sigma_u_m.eif < 0.5 * sigma_u_m.gnss", &["eif", "gnss"]).unwrap();
 //! let r = e.evaluate(|metric, source| match (metric, source) {
 //!     ("sigma_u_m", "eif") => Some(0.2),
@@ -524,90 +524,6 @@ mod tests {
         assert_eq!(ours, scoring);
     }
 
-    /// A robot section with distinct values per metric and `collisions` post contacts.
-    fn robot(collisions: usize, completed: bool) -> crate::report::RobotReport {
-        use crate::report::{RobotOutcome, RobotReport};
-        use vinebench_sim::motion::RobotMetrics;
-        use vinebench_sim::physics::{CollisionEvent, Obstacle};
-        RobotReport {
-            outcome: if completed {
-                RobotOutcome::Completed { at_s: 40.0 }
-            } else {
-                RobotOutcome::Stuck {
-                    at_s: 20.0,
-                    progress_m: 9.0,
-                }
-            },
-            route_completed: completed,
-            metrics: RobotMetrics {
-                max_cross_track_m: 0.12,
-                max_heading_error_deg: 3.5,
-                max_tilt_deg: 6.25,
-                distance_m: 41.5,
-                progress_m: 40.0,
-                route_length_m: 40.0,
-                cusps_passed: 0,
-                samples: 8000,
-            },
-            collisions: (0..collisions)
-                .map(|i| CollisionEvent {
-                    time_s: 10.0 + i as f64,
-                    link: "base_link".into(),
-                    obstacle: Obstacle::Post { row: 0, index: i },
-                    robot_position_m: [5.5, 0.0, 0.2],
-                })
-                .collect(),
-            // The largest of two comparisons counts.
-            comparisons: [(0.25, 0.375), (0.125, 0.5)]
-                .into_iter()
-                .map(|(gap, separation)| crate::report::ComparisonReport {
-                    model: "rapier".into(),
-                    completed: true,
-                    duration_s: 40.0,
-                    distance_m: 41.0,
-                    end_gap_m: gap,
-                    end_heading_deg: 1.0,
-                    max_path_separation_m: separation,
-                })
-                .collect(),
-        }
-    }
-
-    #[test]
-    fn every_robot_metric_has_a_value_in_the_robot_report() {
-        let r = robot(2, true);
-        let want = [
-            ("collisions", 2.0),
-            ("route_completed", 1.0),
-            ("max_cross_track_m", 0.12),
-            ("max_heading_error_deg", 3.5),
-            ("max_tilt_deg", 6.25),
-            ("distance_m", 41.5),
-            ("compare_end_gap_m", 0.25),
-            ("compare_path_separation_m", 0.5),
-        ];
-        let mut names: Vec<&str> = ROBOT_METRICS.iter().map(|m| m.0).collect();
-        let mut wanted: Vec<&str> = want.iter().map(|w| w.0).collect();
-        names.sort_unstable();
-        wanted.sort_unstable();
-        assert_eq!(names, wanted);
-        for (name, v) in want {
-            assert_eq!(r.metric(name), Some(v), "{name}");
-        }
-        assert_eq!(robot(0, false).metric("route_completed"), Some(0.0));
-        // Without `motion.compare_with` the comparison metrics have no value.
-        let alone = crate::report::RobotReport {
-            comparisons: Vec::new(),
-            ..robot(0, true)
-        };
-        assert_eq!(alone.metric("compare_end_gap_m"), None);
-        assert_eq!(r.metric("ate_rmse_m"), None);
-        // No name is both a robot and an estimate metric.
-        for (m, _) in ROBOT_METRICS {
-            assert!(!METRICS.iter().any(|(e, _)| e == m), "{m}");
-        }
-    }
-
     #[test]
     fn robot_is_always_a_source_with_its_own_metrics() {
         for sources in [SRC, &["gnss"][..], &[][..]] {
@@ -646,36 +562,6 @@ mod tests {
         assert!(e("collisions.robot <= d_m.robot").contains("not of `robot`"));
         // Unknown sources mention `robot`.
         assert!(e("collisions.robots <= 0").contains("`robot` (the robot's own run) is always"));
-    }
-
-    #[test]
-    fn robot_expectations_evaluate_on_the_robot_report() {
-        let eval = |text: &str, r: &crate::report::RobotReport| {
-            Expectation::parse(text, SRC)
-                .unwrap()
-                .evaluate(|m, s| match s {
-                    ROBOT_SOURCE => r.metric(m),
-                    "eif" if m == "ate_rmse_m" => Some(0.05),
-                    _ => None,
-                })
-        };
-        let (ok, bad) = (robot(0, true), robot(3, false));
-        let r = eval("collisions.robot <= 0", &ok);
-        assert!(r.holds && r.margin == Some(0.0), "{r:?}");
-        let r = eval("collisions.robot <= 0", &bad);
-        assert!(
-            !r.holds && r.lhs == Some(3.0) && r.margin == Some(-3.0),
-            "{r:?}"
-        );
-        assert!(eval("route_completed.robot >= 1", &ok).holds);
-        assert!(!eval("route_completed.robot >= 1", &bad).holds);
-        let r = eval("max_cross_track_m.robot < 0.2", &ok);
-        assert!(r.holds && (r.margin.unwrap() - 0.08).abs() < 1e-12, "{r:?}");
-        assert!(!eval("max_tilt_deg.robot < 6", &ok).holds);
-        assert!(eval("max_heading_error_deg.robot <= 3.5", &ok).holds);
-        // 41.5 > 100 * 0.05.
-        let r = eval("distance_m.robot > 100 * ate_rmse_m.eif", &ok);
-        assert!(r.holds && (r.margin.unwrap() - 36.5).abs() < 1e-12, "{r:?}");
     }
 
     #[test]

@@ -14,13 +14,13 @@
 //!   with and without mapping, and the map's size.
 
 use crate::bench::{BenchError, Figure};
-use crate::mapper::bpa;
-use crate::mapper::voxel::VoxelGrid;
 use crate::runner::{setup, simulate_setup};
 use crate::scenario::LoadedScenario;
 use std::hint::black_box;
 use std::path::Path;
 use std::time::Instant;
+use vinebench_onboard::mapper::bpa;
+use vinebench_onboard::mapper::voxel::VoxelGrid;
 
 /// Open3D 0.20 `voxel_down_sample` of 10 M uniform points at 1 cm on this machine, s
 /// (fastest of the measured 3.6-4.1 s).
@@ -189,7 +189,7 @@ pub fn memory_scenario(
         .collect();
     sc.scenario.max_duration_s = max_duration_s;
     sc.scenario.mapper.enabled = mapping;
-    sc.scenario.mapper.sources = vec![crate::estimator::EstimatorKind::Eif];
+    sc.scenario.mapper.sources = vec![vinebench_onboard::estimator::EstimatorKind::Eif];
     Ok(sc)
 }
 
@@ -342,7 +342,7 @@ pub fn mapper_figures(quick: bool) -> Result<Vec<Figure>, BenchError> {
 mod tests {
     use super::*;
 
-    /// `cargo test --release --lib bench_mapper::tests::cpu_figures -- --ignored
+    /// `cargo test --release --lib bench::mapper::tests::cpu_figures -- --ignored
     /// --nocapture`: the voxel and Ball-Pivoting figures alone.
     #[test]
     #[ignore]
