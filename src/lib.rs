@@ -13,14 +13,19 @@
 //! - [`replay`]: the onboard algorithms on a recording (a vinebench run's or a robot's).
 //! - [`scoring`]: TUM files, evo-compatible ATE/RPE, the closed-loop metrics of the seed
 //!   paper's Table 1, loop closures, maps, plots, and the expectation language.
+//! - [`sweep`]: experiments: a scenario over seeds and parameters, sharded across
+//!   machines, merged into statistics, plots, JUnit and a regression gate.
 //! - [`bench`]: `vinebench bench`, the speed and memory figures of `docs/PERFORMANCE.md`.
+//! - [`fsio`]: whole-or-nothing file writes.
 //! - [`vocabulary`]: the SLAM's bag-of-words vocabulary trained on the keyframes of a
 //!   simulated scenario (`vinebench vocabulary`).
 
 pub mod bench;
+pub mod fsio;
 pub mod recording;
 pub mod replay;
 pub mod runner;
 pub mod scenario;
 pub mod scoring;
+pub mod sweep;
 pub mod vocabulary;

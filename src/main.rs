@@ -37,6 +37,8 @@ const EXIT_INTERRUPTED: u8 = 130;
         vinebench run scenarios/poor-gnss.toml --out /tmp/r    choose the run folder\n  \
         vinebench check scenarios/                             run every scenario, CI-style\n  \
         vinebench check scenarios/ --shard 2/4                 this job's quarter of them\n  \
+        vinebench sweep scenarios/sweeps/rtk-outage-length.toml  a scenario over seeds and values\n  \
+        vinebench sweep merge runs/sweeps/a runs/sweeps/b       shards' rows → statistics, plots\n  \
         vinebench validate my-scenario.toml                    check a file without running it\n  \
         vinebench defaults > my-scenario.toml                  every key with its default\n  \
         vinebench score --ref runs/x/ground_truth.tum runs/x/estimate_eif.tum --align\n  \
@@ -90,7 +92,17 @@ enum Command {
         /// Run only shard I of N (1-based), over the sorted list of scenarios.
         #[arg(long, value_name = "I/N")]
         shard: Option<String>,
+        /// Also write JUnit XML (a test suite per scenario, a test case per expectation).
+        #[arg(long, value_name = "FILE")]
+        junit: Option<PathBuf>,
     },
+    /// Run a sweep: scenarios over seeds and parameter values, statistics over the runs.
+    #[command(
+        args_conflicts_with_subcommands = true,
+        subcommand_negates_reqs = true,
+        after_help = SWEEP_HELP
+    )]
+    Sweep(SweepArgs),
     /// Check scenario files (syntax, keys, values, world, robot, route, sensors) without
     /// running them.
     Validate {
@@ -168,9 +180,103 @@ enum Command {
         /// `render` (ray casting, shading, camera scenarios), `recording` (MCAP write and
         /// read speed, a run's slowdown by its recording), `mapper` (voxel downsampling,
         /// Ball-Pivoting, memory of mapping a row loop) or `slam` (the whole visual SLAM
-        /// on a rendered stream of the box-occluder scenario, rig frames per second).
-        #[arg(long, default_value = "all", value_parser = ["all", "core", "render", "recording", "mapper", "slam"])]
+        /// on a rendered stream of the box-occluder scenario, rig frames per second) or
+        /// `sweep` (sweep throughput with 1 and 2 jobs at once, overhead per job, merge of
+        /// 10,000 rows).
+        #[arg(long, default_value = "all", value_parser = ["all", "core", "render", "recording", "mapper", "slam", "sweep"])]
         only: String,
+    },
+}
+
+const SWEEP_HELP: &str = "Examples:\n  \
+    vinebench sweep scenarios/sweeps/rtk-outage-length.toml --jobs 2\n  \
+    vinebench sweep scenarios/sweeps/occluder-width.toml --out /scratch/ow --shard 3/8\n  \
+    vinebench sweep merge /scratch/ow --out results/ow --junit ow.xml\n  \
+    vinebench sweep compare main-results/ pr-results/ --max-worse 5% --alpha 0.05\n\n\
+    A sweep file names base scenarios, seeds (\"1-20\" or a list), axes of scenario keys \
+    with their values (a grid by default; zip, random or latin_hypercube), the metrics to \
+    tabulate and expectations over statistics (`p95(outage_max_error_m.eif) <= 0.4`, \
+    `rate(tracking_losses.slam_single_camera > 0) >= 0.8`, `pass_rate >= 0.9`). Every job \
+    (scenario x cell x seed) is an ordinary run; its result is a JSON line in \
+    <out>/rows/, written as it finishes, so a rerun of the same command skips finished \
+    jobs. Without a shard the whole sweep runs here and is merged into <out>. With \
+    --shard I/N, or inside a Slurm job array (SLURM_ARRAY_TASK_ID/_MIN/_STEP/_COUNT) or a \
+    Kubernetes Indexed Job (JOB_COMPLETION_INDEX with VINEBENCH_SHARD_COUNT), only that \
+    shard runs; `sweep merge` then unites the shards' folders. Run folders are kept per \
+    --keep (default: failed jobs'). Exit code of a shard: 0 every job has a row, 2 bad \
+    input, 130 interrupted. Exit code of a whole sweep and of merge: 0 every expectation \
+    holds, 1 one fails or a job could not run, 2 bad input or missing jobs. \
+    Scripts for Slurm, GitHub Actions and Kubernetes: scripts/slurm/, scripts/ci/.";
+
+#[derive(Args)]
+struct SweepArgs {
+    #[command(subcommand)]
+    action: Option<SweepAction>,
+    /// The sweep file.
+    #[arg(required = true)]
+    file: Option<PathBuf>,
+    /// The sweep folder (default: runs/sweeps/<name>/); shards of one sweep share it or
+    /// each write their own, to be merged.
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// Jobs at once on this machine (results do not depend on it).
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    jobs: usize,
+    /// Run only shard I of N (1-based); default: from the Slurm or Kubernetes
+    /// environment, else the whole sweep.
+    #[arg(long, value_name = "I/N")]
+    shard: Option<String>,
+    /// Run folders to keep.
+    #[arg(long, default_value = "failed", value_parser = ["none", "failed", "all"])]
+    keep: String,
+    /// JUnit XML of the merged sweep (whole sweeps only).
+    #[arg(long, value_name = "FILE")]
+    junit: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+#[derive(Subcommand)]
+enum SweepAction {
+    /// Unite the rows of a sweep's shards: results.csv, summary.json, sweep.md with plots,
+    /// JUnit; check the sweep's expectations.
+    Merge {
+        /// Sweep folders (each shard's, or one shared).
+        #[arg(required = true)]
+        dirs: Vec<PathBuf>,
+        /// Where to write (default: the first folder).
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// Merge even when jobs are missing (exit code then from the expectations).
+        #[arg(long)]
+        partial: bool,
+        /// Also write JUnit XML: a suite per cell, a case per job and per expectation.
+        #[arg(long, value_name = "FILE")]
+        junit: Option<PathBuf>,
+    },
+    /// Regression gate: compare a new sweep with a base one, cell by cell and metric by
+    /// metric, paired by seed. Exit code 1 on any regression.
+    Compare {
+        /// The base sweep folder (main's results).
+        base: PathBuf,
+        /// The new sweep folder.
+        new: PathBuf,
+        /// Metrics to gate, comma-separated (default: every metric with a better direction).
+        #[arg(long, value_delimiter = ',', value_name = "M,...")]
+        metrics: Vec<String>,
+        /// Allowed worsening before a significant change is a regression (`5%` or `0.05`).
+        #[arg(long, default_value = "5%", value_name = "FRACTION")]
+        max_worse: String,
+        /// Significance level of each test.
+        #[arg(long, default_value_t = 0.05)]
+        alpha: f64,
+        /// Also write the Markdown table here (it is printed either way).
+        #[arg(long, value_name = "FILE")]
+        out: Option<PathBuf>,
+        /// Also write JUnit XML: a suite per cell, a case per gated metric.
+        #[arg(long, value_name = "FILE")]
+        junit: Option<PathBuf>,
     },
 }
 
@@ -244,7 +350,13 @@ fn dispatch(cmd: Command) -> Result<u8> {
                 EXIT_FAIL
             })
         }
-        Command::Check { paths, runs, shard } => check(&paths, &runs, shard.as_deref()),
+        Command::Check {
+            paths,
+            runs,
+            shard,
+            junit,
+        } => check(&paths, &runs, shard.as_deref(), junit.as_deref()),
+        Command::Sweep(a) => sweep_cmd(a),
         Command::Validate { scenarios } => {
             let mut code = EXIT_PASS;
             for p in scenarios {
@@ -337,6 +449,9 @@ fn dispatch(cmd: Command) -> Result<u8> {
             }
             if only == "all" || only == "slam" {
                 figures.extend(vinebench::bench::slam_tracking_figures(quick)?);
+            }
+            if only == "all" || only == "sweep" {
+                figures.extend(vinebench::bench::sweep::sweep_figures(quick)?);
             }
             println!("| figure | value | target |\n|---|---:|---:|");
             for f in figures {
@@ -496,7 +611,160 @@ fn parse_shard(s: &str) -> Result<(usize, usize)> {
     Ok((i, n))
 }
 
-fn check(paths: &[PathBuf], runs: &Path, shard: Option<&str>) -> Result<u8> {
+/// `vinebench sweep ...`.
+fn sweep_cmd(a: SweepArgs) -> Result<u8> {
+    use vinebench::sweep::{merge, run, spec::Sweep};
+    if let Some(SweepAction::Merge {
+        dirs,
+        out,
+        partial,
+        junit,
+    }) = a.action
+    {
+        let out = out.unwrap_or_else(|| dirs[0].clone());
+        let opts = merge::MergeOptions {
+            out_dir: out.clone(),
+            partial,
+            junit,
+        };
+        let s = merge::merge(&dirs, &opts)?;
+        print_merge(&s, &out);
+        return Ok(s.exit_code(partial));
+    }
+    if let Some(SweepAction::Compare {
+        base,
+        new,
+        metrics,
+        max_worse,
+        alpha,
+        out,
+        junit,
+    }) = a.action
+    {
+        use vinebench::sweep::compare;
+        let t = max_worse.trim();
+        let max_worse = match t.strip_suffix('%') {
+            Some(p) => p.trim().parse::<f64>().map(|v| v / 100.0),
+            None => t.parse::<f64>(),
+        }
+        .ok()
+        .filter(|v| v.is_finite() && *v >= 0.0)
+        .with_context(|| format!("--max-worse {t}: expected a fraction such as 5% or 0.05"))?;
+        let o = compare::CompareOptions {
+            metrics,
+            max_worse,
+            alpha,
+        };
+        let r = compare::compare(&base, &new, &o)?;
+        let md = compare::markdown(&r);
+        print!("{md}");
+        if let Some(p) = out {
+            vinebench::fsio::write_atomic(&p, md.as_bytes())
+                .with_context(|| format!("{}: cannot write", p.display()))?;
+        }
+        if let Some(j) = junit {
+            let xml = vinebench::sweep::junit::to_xml("sweep compare", &compare::junit_suites(&r));
+            vinebench::fsio::write_atomic(&j, xml.as_bytes())
+                .with_context(|| format!("{}: cannot write", j.display()))?;
+        }
+        return Ok(r.exit_code());
+    }
+    let Some(file) = a.file else {
+        bail!("expected a sweep file, `merge` or `compare`");
+    };
+    let sweep = Sweep::load(&file)?;
+    let shard = run::Shard::from_args(a.shard.as_deref(), |k| std::env::var(k).ok())
+        .map_err(anyhow::Error::msg)?;
+    let out = a
+        .out
+        .unwrap_or_else(|| PathBuf::from("runs/sweeps").join(&sweep.name));
+    let keep = match a.keep.as_str() {
+        "none" => run::Keep::None,
+        "all" => run::Keep::All,
+        _ => run::Keep::Failed,
+    };
+    let whole = shard.count == 1;
+    eprintln!(
+        "{}: {} job(s) ({} scenario(s) x {} cell(s) x {} seed(s)); {}; {} at once -> {}",
+        sweep.name,
+        sweep.job_count(),
+        sweep.scenarios.len(),
+        sweep.cells.len(),
+        sweep.seeds.len(),
+        shard.from,
+        a.jobs,
+        out.display()
+    );
+    let opts = run::SweepOptions {
+        out_dir: out.clone(),
+        jobs: a.jobs,
+        shard,
+        keep,
+        progress: !a.quiet,
+        stop: Some(interrupt_flag()),
+    };
+    let o = match run::run_shard(&sweep, &opts) {
+        Err(e @ run::SweepRunError::Interrupted { .. }) => {
+            eprintln!("{e}");
+            return Ok(EXIT_INTERRUPTED);
+        }
+        r => r?,
+    };
+    eprintln!(
+        "{} job(s) in this shard: {} already done, {} pass, {} fail, {} error",
+        o.jobs, o.skipped, o.passed, o.failed, o.errors
+    );
+    if !whole {
+        eprintln!(
+            "shard done; when every shard is, merge: vinebench sweep merge {}",
+            out.display()
+        );
+        return Ok(EXIT_PASS);
+    }
+    let mopts = merge::MergeOptions {
+        out_dir: out.clone(),
+        partial: false,
+        junit: a.junit,
+    };
+    let s = merge::merge(std::slice::from_ref(&out), &mopts)?;
+    print_merge(&s, &out);
+    Ok(s.exit_code(false))
+}
+
+fn print_merge(s: &vinebench::sweep::merge::MergeSummary, out: &Path) {
+    println!(
+        "{}: {}/{} job(s) with results ({} pass, {} fail, {} error){}",
+        s.sweep.name,
+        s.rows,
+        s.jobs,
+        s.passed,
+        s.failed,
+        s.errors,
+        if s.missing.is_empty() {
+            String::new()
+        } else {
+            format!(", {} MISSING (first: {})", s.missing.len(), s.missing[0])
+        }
+    );
+    for d in s.damaged.iter().chain(&s.conflicts) {
+        eprintln!("warning: {d}");
+    }
+    for c in &s.cells {
+        for x in &c.expectations {
+            println!("{} / {}: {x}", c.scenario, c.label);
+        }
+    }
+    for x in &s.overall {
+        println!("all jobs: {x}");
+    }
+    println!(
+        "{} — {}",
+        if s.passed_all { "PASS" } else { "FAIL" },
+        out.join("sweep.md").display()
+    );
+}
+
+fn check(paths: &[PathBuf], runs: &Path, shard: Option<&str>, junit: Option<&Path>) -> Result<u8> {
     let mut files = collect_scenarios(paths)?;
     if let Some(s) = shard {
         let (i, n) = parse_shard(s)?;
@@ -512,6 +780,7 @@ fn check(paths: &[PathBuf], runs: &Path, shard: Option<&str>) -> Result<u8> {
     }
     let mut worst = EXIT_PASS;
     let mut rows = Vec::new();
+    let mut suites = Vec::new();
     for f in &files {
         let result = LoadedScenario::load(f)
             .map_err(anyhow::Error::from)
@@ -523,6 +792,7 @@ fn check(paths: &[PathBuf], runs: &Path, shard: Option<&str>) -> Result<u8> {
                 };
                 Ok(runner::run(&sc, &opts)?)
             });
+        suites.push(check_suite(f, &result));
         match result {
             Ok(o) => {
                 let held = o.report.expectations.iter().filter(|x| x.holds).count();
@@ -552,7 +822,74 @@ fn check(paths: &[PathBuf], runs: &Path, shard: Option<&str>) -> Result<u8> {
     for r in rows {
         println!("{r}");
     }
+    if let Some(j) = junit {
+        let xml = vinebench::sweep::junit::to_xml("vinebench check", &suites);
+        vinebench::fsio::write_atomic(j, xml.as_bytes())
+            .with_context(|| format!("{}: cannot write the JUnit file", j.display()))?;
+    }
     Ok(worst)
+}
+
+/// A scenario's JUnit suite: a case per expectation, or one error case.
+fn check_suite(
+    file: &Path,
+    result: &Result<runner::RunOutcome>,
+) -> vinebench::sweep::junit::TestSuite {
+    use vinebench::sweep::junit::{TestCase, TestSuite, Verdict};
+    let name = file.display().to_string();
+    let classname = format!(
+        "check.{}",
+        file.file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    );
+    let cases = match result {
+        Ok(o) => {
+            let n = o.report.expectations.len().max(1) as f64;
+            let out = format!("run folder: {}", o.dir.display());
+            let mut cases: Vec<TestCase> = o
+                .report
+                .expectations
+                .iter()
+                .map(|x| TestCase {
+                    name: x.text.clone(),
+                    classname: classname.clone(),
+                    time_s: o.wall_s / n,
+                    verdict: if x.holds {
+                        Verdict::Pass
+                    } else {
+                        Verdict::Failure {
+                            message: x.text.clone(),
+                            details: x.to_string(),
+                        }
+                    },
+                    system_out: Some(format!("{x}\n{out}")),
+                })
+                .collect();
+            if cases.is_empty() {
+                // A scenario without expectations still ran: one case for the run.
+                cases.push(TestCase {
+                    name: "runs".into(),
+                    classname: classname.clone(),
+                    time_s: o.wall_s,
+                    verdict: Verdict::Pass,
+                    system_out: Some(out),
+                });
+            }
+            cases
+        }
+        Err(e) => vec![TestCase {
+            name: "runs".into(),
+            classname,
+            time_s: 0.0,
+            verdict: Verdict::Error {
+                message: format!("{e}"),
+                details: format!("{e:#}"),
+            },
+            system_out: None,
+        }],
+    };
+    TestSuite { name, cases }
 }
 
 /// `vinebench vocabulary`: simulate, train, write atomically, summarise.

@@ -107,6 +107,19 @@ pub enum ScenarioError {
         /// The parser's message.
         message: String,
     },
+    /// A value set from outside the file ([`LoadedScenario::from_str_with`]: a sweep's
+    /// axis or seed) cannot be applied or is wrong.
+    #[error("{file}: `{path}` (set by {by}): {message}")]
+    Override {
+        /// The scenario file.
+        file: String,
+        /// Dotted path of the key.
+        path: String,
+        /// Who set it (`sweep.toml axis ...`).
+        by: String,
+        /// What is wrong and what was expected.
+        message: String,
+    },
     /// A key has the wrong type or value, or is unknown.
     #[error("{}: `{path}`: {message}", located(.file, .at))]
     Field {
@@ -143,17 +156,35 @@ pub struct LoadedScenario {
     pub expectations: Vec<Expectation>,
     /// The scenario file's text.
     text: String,
+    /// Keys set from outside the file, with who set them (errors name them).
+    overrides: Vec<(String, String)>,
+}
+
+/// A value for a scenario key from outside the scenario file: a sweep's axis or seed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Override {
+    /// Dotted key path (`world.occluders[0].size_m`, `faults.gnss[1].end_s`, `seed`).
+    pub path: String,
+    /// The value, as TOML.
+    pub value: toml::Value,
+    /// Who sets it, for errors (`sweeps/x.toml: axis "world.occluders[0].s_m" = 4.8`).
+    pub by: String,
 }
 
 impl LoadedScenario {
     /// Reads and validates a scenario file.
     pub fn load(path: &Path) -> Result<LoadedScenario, ScenarioError> {
+        LoadedScenario::load_with(path, &[])
+    }
+
+    /// Reads a scenario file with some keys set from outside it (see [`Override`]).
+    pub fn load_with(path: &Path, overrides: &[Override]) -> Result<LoadedScenario, ScenarioError> {
         let file = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io {
             file: file.clone(),
             source,
         })?;
-        let mut s = LoadedScenario::from_str(&text, &file)?;
+        let mut s = LoadedScenario::from_str_with(&text, &file, overrides)?;
         s.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         Ok(s)
     }
@@ -161,6 +192,18 @@ impl LoadedScenario {
     /// Validates scenario text; `file` names it in errors.
     #[allow(clippy::should_implement_trait)]
     pub fn from_str(text: &str, file: &str) -> Result<LoadedScenario, ScenarioError> {
+        LoadedScenario::from_str_with(text, file, &[])
+    }
+
+    /// Validates scenario text with some keys set from outside it, after the text is
+    /// merged over the defaults: a key the resolved scenario does not have, an index past
+    /// the end of an array, a value of the wrong type or out of range is an error naming
+    /// the override's `by`.
+    pub fn from_str_with(
+        text: &str,
+        file: &str,
+        overrides: &[Override],
+    ) -> Result<LoadedScenario, ScenarioError> {
         let doc = toml_edit::Document::parse(text).map_err(|e| ScenarioError::Syntax {
             file: file.to_string(),
             at: location_of(text, e.span().map(|s| s.start).unwrap_or(0)),
@@ -179,10 +222,32 @@ impl LoadedScenario {
                 message: e.to_string(),
             })?;
         merge(&mut merged, user);
+        for o in overrides {
+            set_path(&mut merged, &o.path, o.value.clone()).map_err(|message| {
+                ScenarioError::Override {
+                    file: file.to_string(),
+                    path: o.path.clone(),
+                    by: o.by.clone(),
+                    message,
+                }
+            })?;
+        }
+        let overridden: Vec<(String, String)> = overrides
+            .iter()
+            .map(|o| (o.path.clone(), o.by.clone()))
+            .collect();
         let scenario: Scenario = serde_path_to_error::deserialize(toml::Value::Table(merged))
             .map_err(|e| {
                 let path = e.path().to_string();
                 let message = e.inner().message().trim().to_string();
+                if let Some(by) = overridden_by(&overridden, &path) {
+                    return ScenarioError::Override {
+                        file: file.to_string(),
+                        path,
+                        by,
+                        message,
+                    };
+                }
                 let at_key = message.starts_with("unknown field");
                 let at = span_of(&doc, &path, at_key).map(|s| location_of(text, s.start));
                 ScenarioError::Field {
@@ -199,6 +264,7 @@ impl LoadedScenario {
             start: Nanos(0),
             expectations: Vec::new(),
             text: text.to_string(),
+            overrides: overridden,
         };
         loaded.validate()?;
         Ok(loaded)
@@ -206,6 +272,14 @@ impl LoadedScenario {
 
     /// The error for a value that fails a check, located at its key.
     pub fn field_error(&self, path: &str, message: impl Into<String>) -> ScenarioError {
+        if let Some(by) = overridden_by(&self.overrides, path) {
+            return ScenarioError::Override {
+                file: self.file.clone(),
+                path: path.to_string(),
+                by,
+                message: message.into(),
+            };
+        }
         ScenarioError::Field {
             file: self.file.clone(),
             at: self.locate(path),
@@ -349,6 +423,141 @@ impl LoadedScenario {
         self.expectations = parsed;
         Ok(())
     }
+}
+
+/// Who set `path` or a key above or below it, if an override did (`faults.gnss[0]` is
+/// about the override of `faults.gnss[0].end_s`, and the other way round).
+fn overridden_by(overrides: &[(String, String)], path: &str) -> Option<String> {
+    let related = |a: &str, b: &str| {
+        a == b || (a.starts_with(b) && matches!(a.as_bytes().get(b.len()), Some(b'.' | b'[')))
+    };
+    overrides
+        .iter()
+        .find(|(p, _)| related(p, path) || related(path, p))
+        .map(|(_, by)| by.clone())
+}
+
+/// Sets the value at a dotted key path (`a.b[2].c`) of a resolved scenario table. Every
+/// table and array on the way must exist (the resolved scenario has every key of the
+/// defaults); the last key may be new only in a table (serde then rejects unknown keys).
+fn set_path(root: &mut toml::Table, path: &str, value: toml::Value) -> Result<(), String> {
+    let segs = strict_segments(path)?;
+    let mut whole = toml::Value::Table(std::mem::take(root));
+    let result = set_in(&mut whole, &segs, value);
+    if let toml::Value::Table(t) = whole {
+        *root = t;
+    }
+    result
+}
+
+/// [`set_path`] on a value: walks every segment but the last, then sets the last.
+fn set_in(mut node: &mut toml::Value, segs: &[Seg], value: toml::Value) -> Result<(), String> {
+    let Some((last, ancestors)) = segs.split_last() else {
+        return Err("expected a key path such as `world.rows.count`".into());
+    };
+    let mut here = String::new();
+    for seg in ancestors {
+        node = step(node, seg, &here)?;
+        here = join_seg(&here, seg);
+    }
+    match (last, node) {
+        (Seg::Key(k), toml::Value::Table(t)) => {
+            t.insert((*k).to_string(), value);
+            Ok(())
+        }
+        (Seg::Index(_), node @ toml::Value::Array(_)) => {
+            *step(node, last, &here)? = value;
+            Ok(())
+        }
+        (seg, other) => Err(format!(
+            "`{here}` is {}, not {}",
+            kind_of(other),
+            match seg {
+                Seg::Key(_) => "a table",
+                Seg::Index(_) => "an array",
+            }
+        )),
+    }
+}
+
+/// One step down a key path.
+fn step<'a>(
+    node: &'a mut toml::Value,
+    seg: &Seg,
+    here: &str,
+) -> Result<&'a mut toml::Value, String> {
+    let name = if here.is_empty() {
+        "the scenario"
+    } else {
+        here
+    };
+    match (seg, node) {
+        (Seg::Key(k), toml::Value::Table(t)) => {
+            let keys: Vec<String> = t.keys().cloned().collect();
+            t.get_mut(*k)
+                .ok_or_else(|| format!("{name} has no key `{k}` (it has: {})", keys.join(", ")))
+        }
+        (Seg::Index(i), toml::Value::Array(a)) => {
+            let n = a.len();
+            a.get_mut(*i).ok_or_else(|| {
+                format!(
+                    "`{here}` has {n} entr{}; index {i} is past its end",
+                    if n == 1 { "y" } else { "ies" }
+                )
+            })
+        }
+        (Seg::Key(_), other) => Err(format!("`{name}` is {}, not a table", kind_of(other))),
+        (Seg::Index(_), other) => Err(format!("`{name}` is {}, not an array", kind_of(other))),
+    }
+}
+
+fn join_seg(here: &str, seg: &Seg) -> String {
+    match seg {
+        Seg::Key(k) if here.is_empty() => (*k).to_string(),
+        Seg::Key(k) => format!("{here}.{k}"),
+        Seg::Index(i) => format!("{here}[{i}]"),
+    }
+}
+
+fn kind_of(v: &toml::Value) -> &'static str {
+    match v {
+        toml::Value::String(_) => "a string",
+        toml::Value::Integer(_) => "an integer",
+        toml::Value::Float(_) => "a float",
+        toml::Value::Boolean(_) => "a boolean",
+        toml::Value::Datetime(_) => "a date-time",
+        toml::Value::Array(_) => "an array",
+        toml::Value::Table(_) => "a table",
+    }
+}
+
+/// Splits `a.b[2].c` into keys and indices, rejecting anything else.
+fn strict_segments(path: &str) -> Result<Vec<Seg<'_>>, String> {
+    let bad = || format!("expected a key path such as `faults.gnss[0].end_s`, found `{path}`");
+    let mut out = Vec::new();
+    for part in path.split('.') {
+        let (name, mut rest) = match part.find('[') {
+            Some(i) => (&part[..i], &part[i..]),
+            None => (part, ""),
+        };
+        if name.is_empty()
+            || !name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+        {
+            return Err(bad());
+        }
+        out.push(Seg::Key(name));
+        while !rest.is_empty() {
+            let close = rest.find(']').ok_or_else(bad)?;
+            if !rest.starts_with('[') {
+                return Err(bad());
+            }
+            out.push(Seg::Index(rest[1..close].parse().map_err(|_| bad())?));
+            rest = &rest[close + 1..];
+        }
+    }
+    Ok(out)
 }
 
 /// Merges `over` into `base`: tables key by key (recursively), everything else replaces.

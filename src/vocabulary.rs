@@ -12,8 +12,7 @@
 //! `scenarios/vocabularies/training.toml` is the training scenario of the shipped
 //! `scenarios/vocabularies/vineyard.vbvoc`.
 
-use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use indicatif::ProgressBar;
@@ -243,40 +242,12 @@ pub fn train_from_scenario(
 /// temporary file beside it, which is synced and renamed over `path` (on failure it is
 /// removed and `path` is left as it was). Returns the file's size in bytes.
 pub fn write_atomic(voc: &Vocabulary, path: &Path) -> Result<u64, VocabularyError> {
-    let io = |p: &Path| {
-        let path = p.display().to_string();
-        move |source| VocabularyError::Io { path, source }
-    };
-    let name = path.file_name().ok_or_else(|| VocabularyError::Io {
-        path: path.display().to_string(),
-        source: std::io::Error::new(
-            std::io::ErrorKind::InvalidInput,
-            "expected a file name, found a folder",
-        ),
-    })?;
-    let parent = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&parent).map_err(io(&parent))?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(".tmp{}", std::process::id()));
-    let tmp = parent.join(tmp_name);
     let bytes = voc.to_bytes();
-    if let Err(e) = write_synced(&tmp, &bytes).and_then(|()| std::fs::rename(&tmp, path)) {
-        // Best effort: the temporary file may not exist.
-        let _ = std::fs::remove_file(&tmp);
-        return Err(io(path)(e));
-    }
+    crate::fsio::write_atomic(path, &bytes).map_err(|source| VocabularyError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
     Ok(bytes.len() as u64)
-}
-
-/// Creates `path` with `bytes` and syncs it to disk.
-fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let mut f = std::fs::File::create(path)?;
-    f.write_all(bytes)?;
-    f.sync_all()
 }
 
 #[cfg(test)]

@@ -12,10 +12,12 @@
 //!
 //! The criterion benches (`cargo bench`) measure the same things with statistics;
 //! this command gives a quick table on any machine. [`mapper`] and [`recording`] add the
-//! mapper's and the recording's figures (`--only mapper`, `--only recording`).
+//! mapper's, the recording's and the sweeps' figures (`--only mapper`, `--only recording`,
+//! `--only sweep`).
 
 pub mod mapper;
 pub mod recording;
+pub mod sweep;
 
 use crate::runner::{RunError, score, simulate};
 use crate::scenario::{LoadedScenario, ScenarioError};

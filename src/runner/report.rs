@@ -190,6 +190,37 @@ pub struct SourceReport {
 }
 
 impl Report {
+    /// Every scalar metric of the run that has a finite value, keyed `metric.source` as
+    /// expectations name them: each estimate source's scores, the SLAM sources' metrics,
+    /// each map's scores and the robot's own run (`collisions.robot`, ...).
+    pub fn metrics(&self) -> BTreeMap<String, f64> {
+        let mut out = BTreeMap::new();
+        let mut put = |metric: &str, source: &str, v: Option<f64>| {
+            if let Some(v) = v.filter(|v| v.is_finite()) {
+                out.insert(format!("{metric}.{source}"), v);
+            }
+        };
+        for s in &self.sources {
+            for m in SourceScore::METRIC_NAMES {
+                put(m, &s.name, s.score.metric(m));
+            }
+        }
+        for (source, metrics) in &self.slam {
+            for (m, v) in metrics {
+                put(m, source, Some(*v));
+            }
+        }
+        for map in &self.maps {
+            for m in crate::scoring::map::MapScore::METRIC_NAMES {
+                put(m, &map.source, map.metric(m));
+            }
+        }
+        for (m, _) in ROBOT_METRICS {
+            put(m, ROBOT_SOURCE, self.robot.metric(m));
+        }
+        out
+    }
+
     /// Assembles the report of a simulation.
     pub fn new(
         sc: &LoadedScenario,
@@ -676,6 +707,7 @@ impl Scores {
     }
 }
 
+/// Scores every estimate against the truth (in parallel; each source is independent,
 /// so the result does not depend on the thread count), and the robot's own run.
 pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Scores {
     let sources = sim

@@ -819,8 +819,6 @@ fn run_metadata(sim: &Simulation) -> BTreeMap<String, String> {
     m
 }
 
-/// Scores every estimate against the truth (in parallel; each source is independent,
-
 fn img_dir(d: &crate::runner::images::PngDump) -> PathBuf {
     d.dir().to_path_buf()
 }

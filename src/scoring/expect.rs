@@ -218,7 +218,12 @@ pub enum Op {
 }
 
 impl Op {
-    fn symbol(self) -> &'static str {
+    /// Every operator with its symbol, two-character symbols first (for parsers).
+    pub const ALL: [(&'static str, Op); 4] =
+        [("<=", Op::Le), (">=", Op::Ge), ("<", Op::Lt), (">", Op::Gt)];
+
+    /// The operator as written.
+    pub fn symbol(self) -> &'static str {
         match self {
             Op::Lt => "<",
             Op::Le => "<=",
@@ -335,8 +340,7 @@ impl Expectation {
     /// ([`ROBOT_SOURCE`] is always valid and need not be listed).
     pub fn parse(text: &str, sources: &[&str]) -> Result<Expectation, ExpectationError> {
         let t = text.trim();
-        let ops = [("<=", Op::Le), (">=", Op::Ge), ("<", Op::Lt), (">", Op::Gt)];
-        let (pos, sym, op) = ops
+        let (pos, sym, op) = Op::ALL
             .iter()
             .filter_map(|(s, o)| t.find(s).map(|p| (p, *s, *o)))
             .min_by_key(|(p, s, _)| (*p, std::cmp::Reverse(s.len())))
@@ -387,42 +391,57 @@ impl Expectation {
                 value(&metric.metric, &metric.source).map(|v| factor * v)
             }
         };
-        let (holds, margin, note) = match (lhs, rhs) {
-            (Some(l), Some(r)) if l.is_finite() && r.is_finite() => {
-                let m = match self.op {
-                    Op::Lt | Op::Le => r - l,
-                    Op::Gt | Op::Ge => l - r,
-                };
-                let holds = match self.op {
-                    Op::Lt => l < r,
-                    Op::Le => l <= r,
-                    Op::Gt => l > r,
-                    Op::Ge => l >= r,
-                };
-                (holds, Some(m), None)
-            }
-            (None, _) => (false, None, Some(format!("{} has no value", self.lhs))),
-            (_, None) => (
-                false,
-                None,
-                Some("the right-hand side has no value".to_string()),
-            ),
-            _ => (false, None, Some("a value is NaN or infinite".to_string())),
-        };
-        ExpectationResult {
-            text: self.text.clone(),
-            holds,
-            lhs,
-            rhs,
-            margin,
-            note,
-        }
+        judge(&self.text, self.op, (lhs, &self.lhs.to_string()), rhs)
     }
 
     /// The operator as written.
     pub fn op_symbol(&self) -> &'static str {
         self.op.symbol()
     }
+}
+
+/// The outcome of `lhs op rhs`: whether it holds and by what margin; a missing or
+/// non-finite side fails with a note (`lhs.1` names the left-hand side).
+pub fn judge(text: &str, op: Op, lhs: (Option<f64>, &str), rhs: Option<f64>) -> ExpectationResult {
+    let (lhs, lhs_name) = lhs;
+    let (holds, margin, note) = match (lhs, rhs) {
+        (Some(l), Some(r)) if l.is_finite() && r.is_finite() => {
+            let m = match op {
+                Op::Lt | Op::Le => r - l,
+                Op::Gt | Op::Ge => l - r,
+            };
+            let holds = match op {
+                Op::Lt => l < r,
+                Op::Le => l <= r,
+                Op::Gt => l > r,
+                Op::Ge => l >= r,
+            };
+            (holds, Some(m), None)
+        }
+        (None, _) => (false, None, Some(format!("{lhs_name} has no value"))),
+        (_, None) => (
+            false,
+            None,
+            Some("the right-hand side has no value".to_string()),
+        ),
+        _ => (false, None, Some("a value is NaN or infinite".to_string())),
+    };
+    ExpectationResult {
+        text: text.to_string(),
+        holds,
+        lhs,
+        rhs,
+        margin,
+        note,
+    }
+}
+
+/// True when `name` is a metric some source can report: an estimate source's, the
+/// robot's, the SLAM's or a map's.
+pub fn is_known_metric(name: &str) -> bool {
+    [METRICS, ROBOT_METRICS, SLAM_METRICS, MAP_METRICS]
+        .iter()
+        .any(|list| list.iter().any(|(m, _)| *m == name))
 }
 
 fn names(list: &[(&str, &str)]) -> String {

@@ -19,7 +19,7 @@ use vinebench_msgs::{Nanos, Trajectory};
 pub const MAX_POINTS_PER_SERIES: usize = 4000;
 
 /// Width and height of every plot, px.
-const SIZE_PX: (u32, u32) = (900, 700);
+pub(crate) const SIZE_PX: (u32, u32) = (900, 700);
 /// Margin around the chart, px.
 const MARGIN_PX: u32 = 15;
 /// Height of the x label area, px.
@@ -63,12 +63,14 @@ pub enum PlotError {
     },
 }
 
-fn draw_err<E: std::error::Error + Send + Sync>(e: DrawingAreaErrorKind<E>) -> PlotError {
+pub(crate) fn draw_err<E: std::error::Error + Send + Sync>(
+    e: DrawingAreaErrorKind<E>,
+) -> PlotError {
     PlotError::Draw(e.to_string())
 }
 
 /// Draws the series legend in a corner, on a translucent white box.
-fn draw_legend<'a, DB, CT>(
+pub(crate) fn draw_legend<'a, DB, CT>(
     chart: &mut ChartContext<'a, DB, CT>,
     position: SeriesLabelPosition,
 ) -> Result<(), PlotError>
@@ -102,7 +104,7 @@ fn with_truth<'a>(
 }
 
 /// Colour of the `i`-th source.
-fn source_colour(i: usize) -> RGBColor {
+pub(crate) fn source_colour(i: usize) -> RGBColor {
     SOURCE_COLOURS[i % SOURCE_COLOURS.len()]
 }
 
@@ -150,7 +152,7 @@ fn thin_min_max(points: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
 
 /// `[lo, hi]` of the values, padded by [`PAD`]; `[0, 1]` without values, `±1` around a
 /// single value.
-fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+pub(crate) fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     let (lo, hi) = values
         .filter(|v| v.is_finite())
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
@@ -182,7 +184,7 @@ fn plotting_area_px(caption: &str) -> Result<(u32, u32), PlotError> {
     Ok(chart.plotting_area().dim_in_pixel())
 }
 
-fn chart_builder<'a, 'b>(
+pub(crate) fn chart_builder<'a, 'b>(
     root: &'a DrawingArea<SVGBackend<'b>, Shift>,
     caption: &str,
 ) -> ChartBuilder<'a, 'b, SVGBackend<'b>> {

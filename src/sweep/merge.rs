@@ -1,0 +1,778 @@
+//! `vinebench sweep merge`: the rows of every shard of a sweep, united into one table,
+//! statistics per cell and metric, the sweep's expectations, plots, Markdown and JUnit.
+//!
+//! Merge needs only the sweep folders (their `sweep.json` and rows), not the scenario
+//! files: shards' folders fetched as CI artifacts merge anywhere. Everything it writes is
+//! a deterministic function of the rows, so a sweep split over any number of shards
+//! merges to the same bytes as a single-process run; wall-clock times go to `timing.csv`
+//! only.
+
+use crate::scoring::expect::ExpectationResult;
+use crate::sweep::aggregate::{AggregateExpectation, Sample, Scope};
+use crate::sweep::junit::{self, TestCase, TestSuite, Verdict};
+use crate::sweep::run::{self, JobStatus, ResultRow, SweepRunError};
+use crate::sweep::spec::value_text;
+use crate::sweep::stats::{self, Summary};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// The merged rows, one line per job, in job order (a sweep folder of its own).
+pub const MERGED_ROWS: &str = "merged.jsonl";
+
+/// What `sweep.json` says of the sweep (all that merge needs).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+pub struct SweepInfo {
+    /// Name.
+    pub name: String,
+    /// Description.
+    #[serde(default)]
+    pub description: String,
+    /// The base scenarios' names, in order.
+    pub scenarios: Vec<String>,
+    /// Seeds.
+    pub seeds: Vec<u64>,
+    /// The axes.
+    pub axes: Vec<AxisInfo>,
+    /// Cells: a value per axis.
+    pub cells: Vec<Vec<toml::Value>>,
+    /// Metric names to tabulate (empty: all).
+    pub metrics: Vec<String>,
+    /// Per-cell expectations.
+    pub per_cell: Vec<String>,
+    /// Overall expectations.
+    pub overall: Vec<String>,
+    /// The sweep's digest.
+    pub digest: String,
+}
+
+impl SweepInfo {
+    /// Reads a sweep folder's `sweep.json`.
+    pub fn read(dir: &Path) -> Result<SweepInfo, SweepRunError> {
+        let path = dir.join(run::SWEEP_JSON);
+        let bad = |message: String| SweepRunError::Io {
+            path: path.display().to_string(),
+            message,
+        };
+        let digest = run::read_sweep_digest(&path)?;
+        let text = std::fs::read_to_string(&path).map_err(|e| bad(e.to_string()))?;
+        let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        let s = v.get("sweep").ok_or_else(|| bad("no `sweep`".into()))?;
+        let get = |k: &str| s.get(k).cloned().unwrap_or(serde_json::Value::Null);
+        let from = |k: &str| -> Result<serde_json::Value, SweepRunError> {
+            let x = get(k);
+            if x.is_null() {
+                return Err(bad(format!("no `sweep.{k}`")));
+            }
+            Ok(x)
+        };
+        let parse = |k: &'static str, x: serde_json::Value| {
+            move |e: serde_json::Error| bad(format!("`sweep.{k}` ({x}): {e}"))
+        };
+        let scenarios: Vec<String> = from("scenarios")?
+            .as_array()
+            .map(|a| {
+                a.iter()
+                    .filter_map(|s| s.get("name").and_then(|n| n.as_str()).map(str::to_string))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let axes: Vec<AxisInfo> =
+            serde_json::from_value(from("axes")?).map_err(parse("axes", get("axes")))?;
+        let cells: Vec<Vec<toml::Value>> = from("cells")?
+            .as_array()
+            .ok_or_else(|| bad("`sweep.cells` is not a list".into()))?
+            .iter()
+            .map(|c| {
+                serde_json::from_value(c.get("values").cloned().unwrap_or_default())
+                    .map_err(parse("cells", c.clone()))
+            })
+            .collect::<Result<_, _>>()?;
+        let texts = |k: &'static str| -> Result<Vec<String>, SweepRunError> {
+            serde_json::from_value(get(k)).map_err(parse(k, get(k)))
+        };
+        let info = SweepInfo {
+            name: from("name")?.as_str().unwrap_or_default().to_string(),
+            description: get("description").as_str().unwrap_or_default().to_string(),
+            scenarios,
+            seeds: serde_json::from_value(from("seeds")?).map_err(parse("seeds", get("seeds")))?,
+            axes,
+            cells,
+            metrics: texts("metrics")?,
+            per_cell: texts("per_cell")?,
+            overall: texts("overall")?,
+            digest,
+        };
+        if info.scenarios.is_empty() || info.seeds.is_empty() || info.cells.is_empty() {
+            return Err(bad("a sweep has scenarios, seeds and cells".into()));
+        }
+        Ok(info)
+    }
+
+    /// Number of jobs.
+    pub fn job_count(&self) -> usize {
+        self.scenarios.len() * self.cells.len() * self.seeds.len()
+    }
+
+    /// Job `j`'s (scenario, cell, seed) in the stable order.
+    pub fn job(&self, j: usize) -> (usize, usize, u64) {
+        let per_scenario = self.cells.len() * self.seeds.len();
+        let (s, rest) = (j / per_scenario, j % per_scenario);
+        (
+            s,
+            rest / self.seeds.len(),
+            self.seeds[rest % self.seeds.len()],
+        )
+    }
+
+    /// A cell's label: `key = value, ...` (or `all` without axes).
+    pub fn cell_label(&self, cell: usize) -> String {
+        if self.axes.is_empty() {
+            return "all".into();
+        }
+        self.axes
+            .iter()
+            .zip(&self.cells[cell])
+            .map(|(a, v)| format!("{} = {}", a.key, value_text(v)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+/// What merge knows of an axis.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+pub struct AxisInfo {
+    /// Dotted scenario key.
+    pub key: String,
+    /// Its values (in the sweep file's order).
+    pub values: Vec<toml::Value>,
+    /// Plot label.
+    #[serde(default)]
+    pub label: Option<String>,
+    /// Plot positions of the values.
+    #[serde(default)]
+    pub x: Option<Vec<f64>>,
+}
+
+/// Options of [`merge`].
+#[derive(Clone, Debug, Default)]
+pub struct MergeOptions {
+    /// Where to write (created).
+    pub out_dir: PathBuf,
+    /// Merge even if jobs are missing.
+    pub partial: bool,
+    /// Also write JUnit XML here.
+    pub junit: Option<PathBuf>,
+}
+
+/// One cell of one scenario.
+#[derive(Clone, Debug, Serialize)]
+pub struct CellSummary {
+    /// Scenario name.
+    pub scenario: String,
+    /// Cell number.
+    pub cell: usize,
+    /// `key = value, ...`.
+    pub label: String,
+    /// Jobs with a row.
+    pub jobs: usize,
+    /// Jobs that could not run.
+    pub errors: usize,
+    /// Fraction of jobs whose scenario expectations held.
+    pub pass_rate: f64,
+    /// Its 95 % Wilson interval.
+    pub pass_rate_ci95: (f64, f64),
+    /// Statistics per `metric.source`.
+    pub metrics: BTreeMap<String, Summary>,
+    /// The per-cell expectations.
+    pub expectations: Vec<ExpectationResult>,
+}
+
+/// The merged sweep (`summary.json`).
+#[derive(Clone, Debug, Serialize)]
+pub struct MergeSummary {
+    /// The sweep.
+    pub sweep: SweepInfo,
+    /// Jobs the sweep has.
+    pub jobs: usize,
+    /// Jobs with a row.
+    pub rows: usize,
+    /// Keys of jobs without a row.
+    pub missing: Vec<String>,
+    /// Keys of jobs with more than one row (identical results: kept once).
+    pub duplicates: Vec<String>,
+    /// Keys of jobs whose rows disagree (the first is kept).
+    pub conflicts: Vec<String>,
+    /// Rows that did not parse.
+    pub damaged: Vec<String>,
+    /// Jobs by status.
+    pub passed: usize,
+    /// Jobs whose scenario expectations failed.
+    pub failed: usize,
+    /// Jobs that could not run.
+    pub errors: usize,
+    /// Per scenario and cell.
+    pub cells: Vec<CellSummary>,
+    /// The overall expectations.
+    pub overall: Vec<ExpectationResult>,
+    /// Whether every job has a row, none errored, and every expectation holds.
+    pub passed_all: bool,
+}
+
+impl MergeSummary {
+    /// Exit code: 0 everything holds, 1 an expectation fails or a job could not run, 2 the
+    /// results are incomplete.
+    pub fn exit_code(&self, partial: bool) -> u8 {
+        if (!self.missing.is_empty() && !partial) || !self.conflicts.is_empty() {
+            2
+        } else if self.passed_all {
+            0
+        } else {
+            1
+        }
+    }
+}
+
+/// The rows of the sweep folders `dirs` (all of one sweep), deduplicated, in job order.
+pub fn collect(
+    dirs: &[PathBuf],
+) -> Result<(SweepInfo, Vec<ResultRow>, MergeSummary), SweepRunError> {
+    let Some(first) = dirs.first() else {
+        return Err(SweepRunError::Options(
+            "expected at least one sweep folder".into(),
+        ));
+    };
+    let info = SweepInfo::read(first)?;
+    let mut all = Vec::new();
+    let mut damaged = Vec::new();
+    for d in dirs {
+        let other = SweepInfo::read(d)?;
+        if other.digest != info.digest {
+            return Err(SweepRunError::OtherSweep {
+                dir: d.display().to_string(),
+                theirs: other.digest,
+                ours: info.digest.clone(),
+            });
+        }
+        let (rows, bad) = run::read_rows(d)?;
+        all.extend(rows);
+        damaged.extend(bad);
+    }
+    let n = info.job_count();
+    let mut by_job: BTreeMap<usize, ResultRow> = BTreeMap::new();
+    let (mut duplicates, mut conflicts) = (BTreeSet::new(), BTreeSet::new());
+    for r in all {
+        if r.sweep_digest != info.digest || r.job >= n {
+            damaged.push(format!(
+                "row of job {} ({}) belongs to another sweep",
+                r.job, r.key
+            ));
+            continue;
+        }
+        match by_job.get(&r.job) {
+            None => {
+                by_job.insert(r.job, r);
+            }
+            Some(kept) => {
+                let same = |a: &ResultRow, b: &ResultRow| {
+                    a.status == b.status
+                        && a.metrics == b.metrics
+                        && a.failed == b.failed
+                        && a.scenario_digest == b.scenario_digest
+                };
+                if same(kept, &r) {
+                    duplicates.insert(r.key.clone());
+                } else {
+                    conflicts.insert(r.key.clone());
+                }
+            }
+        }
+    }
+    let rows: Vec<ResultRow> = by_job.into_values().collect();
+    let have: BTreeSet<usize> = rows.iter().map(|r| r.job).collect();
+    let missing = (0..n)
+        .filter(|j| !have.contains(j))
+        .map(|j| {
+            let (s, c, seed) = info.job(j);
+            format!("{}/c{c}/s{seed}", info.scenarios[s])
+        })
+        .collect();
+    let count = |s| rows.iter().filter(|r| r.status == s).count();
+    let summary = MergeSummary {
+        sweep: info.clone(),
+        jobs: n,
+        rows: rows.len(),
+        missing,
+        duplicates: duplicates.into_iter().collect(),
+        conflicts: conflicts.into_iter().collect(),
+        damaged,
+        passed: count(JobStatus::Pass),
+        failed: count(JobStatus::Fail),
+        errors: count(JobStatus::Error),
+        cells: Vec::new(),
+        overall: Vec::new(),
+        passed_all: false,
+    };
+    Ok((info, rows, summary))
+}
+
+/// The `metric.source` columns of the table: every metric some row reports, restricted
+/// to the sweep's `metrics` when it names some, in name order.
+pub fn columns(info: &SweepInfo, rows: &[ResultRow]) -> Vec<String> {
+    let mut cols: BTreeSet<String> = BTreeSet::new();
+    for r in rows {
+        for k in r.metrics.keys() {
+            let metric = k.split('.').next().unwrap_or_default();
+            if info.metrics.is_empty() || info.metrics.iter().any(|m| m == metric) {
+                cols.insert(k.clone());
+            }
+        }
+    }
+    cols.into_iter().collect()
+}
+
+/// A deterministic bootstrap seed per cell and column (FNV-1a).
+fn seed_of(scenario: &str, cell: usize, column: &str) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in scenario
+        .bytes()
+        .chain(cell.to_le_bytes())
+        .chain(column.bytes())
+    {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    h
+}
+
+fn samples<'a>(rows: &[&'a ResultRow]) -> Vec<Sample<impl Fn(&str) -> Option<f64> + 'a>> {
+    rows.iter()
+        .map(|&r| Sample {
+            value: move |c: &str| r.metrics.get(c).copied(),
+            passed: r.status == JobStatus::Pass,
+        })
+        .collect()
+}
+
+/// Statistics, expectations and the verdict of merged rows.
+pub fn summarize(
+    info: &SweepInfo,
+    rows: &[ResultRow],
+    mut summary: MergeSummary,
+) -> Result<MergeSummary, SweepRunError> {
+    let parse = |texts: &[String], scope| {
+        texts
+            .iter()
+            .map(|t| AggregateExpectation::parse(t, scope).map_err(SweepRunError::Options))
+            .collect::<Result<Vec<_>, _>>()
+    };
+    let per_cell = parse(&info.per_cell, Scope::Cell)?;
+    let overall = parse(&info.overall, Scope::Overall)?;
+    let cols = columns(info, rows);
+    for (si, scenario) in info.scenarios.iter().enumerate() {
+        for cell in 0..info.cells.len() {
+            let in_cell: Vec<&ResultRow> = rows
+                .iter()
+                .filter(|r| r.scenario == *scenario && r.cell == cell)
+                .collect();
+            let _ = si;
+            let passed = in_cell
+                .iter()
+                .filter(|r| r.status == JobStatus::Pass)
+                .count();
+            let metrics = cols
+                .iter()
+                .filter_map(|c| {
+                    let xs: Vec<f64> = in_cell
+                        .iter()
+                        .filter_map(|r| r.metrics.get(c).copied())
+                        .filter(|v| v.is_finite())
+                        .collect();
+                    (!xs.is_empty())
+                        .then(|| (c.clone(), stats::summarize(&xs, seed_of(scenario, cell, c))))
+                })
+                .collect();
+            let s = samples(&in_cell);
+            summary.cells.push(CellSummary {
+                scenario: scenario.clone(),
+                cell,
+                label: info.cell_label(cell),
+                jobs: in_cell.len(),
+                errors: in_cell
+                    .iter()
+                    .filter(|r| r.status == JobStatus::Error)
+                    .count(),
+                pass_rate: if in_cell.is_empty() {
+                    f64::NAN
+                } else {
+                    passed as f64 / in_cell.len() as f64
+                },
+                pass_rate_ci95: stats::wilson_interval(passed, in_cell.len(), stats::Z95),
+                metrics,
+                expectations: per_cell.iter().map(|x| x.evaluate(&s)).collect(),
+            });
+        }
+    }
+    let all: Vec<&ResultRow> = rows.iter().collect();
+    let s = samples(&all);
+    summary.overall = overall.iter().map(|x| x.evaluate(&s)).collect();
+    summary.passed_all = summary.missing.is_empty()
+        && summary.conflicts.is_empty()
+        && summary.errors == 0
+        && summary.overall.iter().all(|x| x.holds)
+        && summary
+            .cells
+            .iter()
+            .all(|c| c.expectations.iter().all(|x| x.holds));
+    Ok(summary)
+}
+
+/// A number as it goes into a table: shortest round-trip form, empty for none.
+fn num(v: Option<f64>) -> String {
+    v.filter(|v| v.is_finite())
+        .map(|v| v.to_string())
+        .unwrap_or_default()
+}
+
+/// CSV field quoting (RFC 4180).
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+/// `results.csv`: one row per job (axes, seed, status, every metric column).
+pub fn results_csv(info: &SweepInfo, rows: &[ResultRow], cols: &[String]) -> String {
+    let mut head: Vec<String> = ["job", "key", "scenario", "cell"]
+        .map(String::from)
+        .to_vec();
+    head.extend(info.axes.iter().map(|a| a.key.clone()));
+    head.extend(["seed", "status"].map(String::from));
+    head.extend(cols.iter().cloned());
+    let mut out = head
+        .iter()
+        .map(|h| csv_field(h))
+        .collect::<Vec<_>>()
+        .join(",")
+        + "\n";
+    for r in rows {
+        let mut f = vec![
+            r.job.to_string(),
+            r.key.clone(),
+            r.scenario.clone(),
+            r.cell.to_string(),
+        ];
+        for a in &info.axes {
+            f.push(r.axes.get(&a.key).map(value_text).unwrap_or_default());
+        }
+        f.push(r.seed.to_string());
+        f.push(
+            match r.status {
+                JobStatus::Pass => "pass",
+                JobStatus::Fail => "fail",
+                JobStatus::Error => "error",
+            }
+            .into(),
+        );
+        for c in cols {
+            f.push(num(r.metrics.get(c).copied()));
+        }
+        out += &(f.iter().map(|x| csv_field(x)).collect::<Vec<_>>().join(",") + "\n");
+    }
+    out
+}
+
+/// `timing.csv`: wall-clock seconds per job (varies run to run; kept apart).
+pub fn timing_csv(rows: &[ResultRow]) -> String {
+    let mut out = String::from("job,key,wall_s\n");
+    for r in rows {
+        let _ = writeln!(out, "{},{},{:.3}", r.job, csv_field(&r.key), r.wall_s);
+    }
+    out
+}
+
+/// The JUnit suites: one per scenario and cell (a case per job and per per-cell
+/// expectation), and one for the overall expectations.
+pub fn junit_suites(
+    info: &SweepInfo,
+    rows: &[ResultRow],
+    summary: &MergeSummary,
+) -> Vec<TestSuite> {
+    let expectation_case = |classname: &str, x: &ExpectationResult| TestCase {
+        name: format!("expect: {}", x.text),
+        classname: classname.to_string(),
+        time_s: 0.0,
+        verdict: if x.holds {
+            Verdict::Pass
+        } else {
+            Verdict::Failure {
+                message: x.text.clone(),
+                details: x.to_string(),
+            }
+        },
+        system_out: Some(x.to_string()),
+    };
+    let mut suites = Vec::new();
+    for c in &summary.cells {
+        let classname = format!("sweep.{}.{}.c{}", info.name, c.scenario, c.cell);
+        let mut cases: Vec<TestCase> = rows
+            .iter()
+            .filter(|r| r.scenario == c.scenario && r.cell == c.cell)
+            .map(|r| TestCase {
+                name: format!("seed {}", r.seed),
+                classname: classname.clone(),
+                time_s: r.wall_s,
+                verdict: match r.status {
+                    JobStatus::Pass => Verdict::Pass,
+                    JobStatus::Fail => Verdict::Failure {
+                        message: format!("{} expectation(s) failed", r.failed.len()),
+                        details: r.failed.join("\n"),
+                    },
+                    JobStatus::Error => Verdict::Error {
+                        message: r.error.clone().unwrap_or_default(),
+                        details: r.error.clone().unwrap_or_default(),
+                    },
+                },
+                system_out: r.run_dir.as_ref().map(|d| format!("run folder: {d}")),
+            })
+            .collect();
+        // Jobs without a row are errors too: nothing usable is never a pass.
+        for key in summary
+            .missing
+            .iter()
+            .filter(|k| k.starts_with(&format!("{}/c{}/", c.scenario, c.cell)))
+        {
+            cases.push(TestCase {
+                name: key
+                    .rsplit('/')
+                    .next()
+                    .unwrap_or(key)
+                    .replacen('s', "seed ", 1),
+                classname: classname.clone(),
+                time_s: 0.0,
+                verdict: Verdict::Error {
+                    message: "no result row (the job did not run or its shard is missing)".into(),
+                    details: key.clone(),
+                },
+                system_out: None,
+            });
+        }
+        cases.extend(
+            c.expectations
+                .iter()
+                .map(|x| expectation_case(&classname, x)),
+        );
+        suites.push(TestSuite {
+            name: format!("{} / {} / {}", info.name, c.scenario, c.label),
+            cases,
+        });
+    }
+    if !summary.overall.is_empty() {
+        let classname = format!("sweep.{}.overall", info.name);
+        suites.push(TestSuite {
+            name: format!("{} / overall", info.name),
+            cases: summary
+                .overall
+                .iter()
+                .map(|x| expectation_case(&classname, x))
+                .collect(),
+        });
+    }
+    suites
+}
+
+/// Merges sweep folders into `opts.out_dir`: `results.csv`, `timing.csv`,
+/// `summary.json`, `sweep.md` with `plots/*.svg`, the merged rows (a sweep folder
+/// `compare` reads), and JUnit when asked. Every file is written whole or not at all.
+pub fn merge(dirs: &[PathBuf], opts: &MergeOptions) -> Result<MergeSummary, SweepRunError> {
+    let (info, rows, summary) = collect(dirs)?;
+    let summary = summarize(&info, &rows, summary)?;
+    let out = &opts.out_dir;
+    let write = |name: &str, bytes: &[u8]| {
+        let p = out.join(name);
+        crate::fsio::write_atomic(&p, bytes).map_err(|e| SweepRunError::Io {
+            path: p.display().to_string(),
+            message: e.to_string(),
+        })
+    };
+    let cols = columns(&info, &rows);
+    write("results.csv", results_csv(&info, &rows, &cols).as_bytes())?;
+    write("timing.csv", timing_csv(&rows).as_bytes())?;
+    let json = serde_json::to_string_pretty(&summary).map_err(|e| SweepRunError::Io {
+        path: out.join("summary.json").display().to_string(),
+        message: e.to_string(),
+    })?;
+    write("summary.json", (json + "\n").as_bytes())?;
+    // The merged folder is a sweep folder too (compare reads it; merging it again gives
+    // the same), unless it is one of the inputs, whose rows are already there.
+    let same = |d: &PathBuf| match (d.canonicalize(), out.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    };
+    if !dirs.iter().any(same) {
+        let src = dirs[0].join(run::SWEEP_JSON);
+        let sweep_json = std::fs::read(&src).map_err(|e| SweepRunError::Io {
+            path: src.display().to_string(),
+            message: e.to_string(),
+        })?;
+        write(run::SWEEP_JSON, &sweep_json)?;
+        let mut merged = Vec::new();
+        for r in &rows {
+            let mut r = r.clone();
+            r.run_dir = None;
+            merged.extend(serde_json::to_vec(&r).map_err(|e| SweepRunError::Io {
+                path: MERGED_ROWS.into(),
+                message: e.to_string(),
+            })?);
+            merged.push(b'\n');
+        }
+        write(&format!("{}/{MERGED_ROWS}", run::ROWS_DIR), &merged)?;
+    }
+    let plots = crate::sweep::plots::write_plots(&info, &summary, &out.join("plots"))?;
+    write("sweep.md", markdown(&info, &summary, &plots).as_bytes())?;
+    if let Some(j) = &opts.junit {
+        let xml = junit::to_xml(
+            &format!("sweep {}", info.name),
+            &junit_suites(&info, &rows, &summary),
+        );
+        crate::fsio::write_atomic(j, xml.as_bytes()).map_err(|e| SweepRunError::Io {
+            path: j.display().to_string(),
+            message: e.to_string(),
+        })?;
+    }
+    Ok(summary)
+}
+
+fn fmt3(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:.4}")
+    } else {
+        "–".into()
+    }
+}
+
+/// `sweep.md`: what ran, the expectations, a table per metric, the plots.
+pub fn markdown(info: &SweepInfo, s: &MergeSummary, plots: &[(String, String)]) -> String {
+    let mut md = format!("# Sweep `{}`\n\n", info.name);
+    if !info.description.is_empty() {
+        let _ = writeln!(md, "{}\n", info.description.trim());
+    }
+    let _ = writeln!(
+        md,
+        "{} job(s): {} scenario(s) × {} cell(s) × {} seed(s); {} with results ({} pass, {} fail, \
+         {} error){}.\n\n**{}**\n",
+        s.jobs,
+        info.scenarios.len(),
+        info.cells.len(),
+        info.seeds.len(),
+        s.rows,
+        s.passed,
+        s.failed,
+        s.errors,
+        if s.missing.is_empty() {
+            String::new()
+        } else {
+            format!("; **{} missing**", s.missing.len())
+        },
+        if s.passed_all { "PASS" } else { "FAIL" }
+    );
+    let expectation_rows: Vec<(String, &ExpectationResult)> = s
+        .cells
+        .iter()
+        .flat_map(|c| {
+            c.expectations
+                .iter()
+                .map(move |x| (format!("{} / {}", c.scenario, c.label), x))
+        })
+        .chain(s.overall.iter().map(|x| ("all jobs".to_string(), x)))
+        .collect();
+    if !expectation_rows.is_empty() {
+        md.push_str("## Expectations\n\n| where | expectation | value | bound | margin | |\n|---|---|---:|---:|---:|---|\n");
+        for (where_, x) in expectation_rows {
+            let _ = writeln!(
+                md,
+                "| {where_} | `{}` | {} | {} | {} | {} |",
+                x.text,
+                x.lhs.map(fmt3).unwrap_or_else(|| "–".into()),
+                x.rhs.map(fmt3).unwrap_or_else(|| "–".into()),
+                x.margin
+                    .map(fmt3)
+                    .unwrap_or_else(|| x.note.clone().unwrap_or_default()),
+                if x.holds { "holds" } else { "**FAILS**" }
+            );
+        }
+        md.push('\n');
+    }
+    md.push_str(
+        "## Cells\n\n| scenario | cell | jobs | pass rate (95 % CI) |\n|---|---|---:|---|\n",
+    );
+    for c in &s.cells {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {:.2} ({:.2}–{:.2}){} |",
+            c.scenario,
+            c.label,
+            c.jobs,
+            c.pass_rate,
+            c.pass_rate_ci95.0,
+            c.pass_rate_ci95.1,
+            if c.errors > 0 {
+                format!(", {} error(s)", c.errors)
+            } else {
+                String::new()
+            }
+        );
+    }
+    let cols: BTreeSet<&String> = s.cells.iter().flat_map(|c| c.metrics.keys()).collect();
+    if !cols.is_empty() {
+        md.push_str("\n## Metrics\n\nMean with its 95 % bootstrap interval, median, 5th and 95th percentile, over the seeds of each cell.\n");
+        for col in cols {
+            let _ = writeln!(
+                md,
+                "\n### `{col}`\n\n| scenario | cell | n | mean (95 % CI) | std | median | p5 | p95 | min | max |\n|---|---|---:|---|---:|---:|---:|---:|---:|---:|"
+            );
+            for c in &s.cells {
+                if let Some(m) = c.metrics.get(col) {
+                    let _ = writeln!(
+                        md,
+                        "| {} | {} | {} | {} ({}–{}) | {} | {} | {} | {} | {} | {} |",
+                        c.scenario,
+                        c.label,
+                        m.n,
+                        fmt3(m.mean),
+                        fmt3(m.ci95.0),
+                        fmt3(m.ci95.1),
+                        fmt3(m.std),
+                        fmt3(m.median),
+                        fmt3(m.p5),
+                        fmt3(m.p95),
+                        fmt3(m.min),
+                        fmt3(m.max)
+                    );
+                }
+            }
+        }
+    }
+    if !plots.is_empty() {
+        md.push_str("\n## Plots\n\n");
+        for (title, file) in plots {
+            let _ = writeln!(md, "![{title}]({file})\n");
+        }
+    }
+    if !s.missing.is_empty() {
+        let _ = writeln!(
+            md,
+            "\n## Missing jobs\n\n{}",
+            s.missing
+                .iter()
+                .take(50)
+                .map(|k| format!("- `{k}`"))
+                .collect::<Vec<_>>()
+                .join("\n")
+        );
+    }
+    md
+}
