@@ -248,7 +248,8 @@ enum SweepAction {
         /// Where to write (default: the first folder).
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
-        /// Merge even when jobs are missing (exit code then from the expectations).
+        /// Merge even when jobs are missing: the statistics of what is there (exit code 1
+        /// at best: an incomplete sweep never passes).
         #[arg(long)]
         partial: bool,
         /// Also write JUnit XML: a suite per cell, a case per job and per expectation.
@@ -733,13 +734,9 @@ fn sweep_cmd(a: SweepArgs) -> Result<u8> {
 
 fn print_merge(s: &vinebench::sweep::merge::MergeSummary, out: &Path) {
     println!(
-        "{}: {}/{} job(s) with results ({} pass, {} fail, {} error){}",
+        "{}: {}{}",
         s.sweep.name,
-        s.rows,
-        s.jobs,
-        s.passed,
-        s.failed,
-        s.errors,
+        s.counts(),
         if s.missing.is_empty() {
             String::new()
         } else {

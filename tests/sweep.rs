@@ -294,4 +294,38 @@ fn the_gate_flags_a_worse_configuration_and_not_an_identical_one() {
     assert!(flagged.contains(&"outage_max_error_m.gnss"), "{flagged:?}");
     assert_eq!(r.exit_code(), 1);
     assert!(compare::markdown(&r).contains("REGRESSION"));
+
+    // The same code on disjoint seeds: every comparison is unpaired, and flags come only
+    // by chance (one-sided, so at most alpha / 2 of them in expectation; three binomial
+    // standard deviations of room).
+    let other_seeds = dir.path().join("disjoint.toml");
+    std::fs::write(
+        &other_seeds,
+        format!(
+            "name = \"gate\"\nscenario = {:?}\nseeds = \"9-16\"\n[axes]\nmax_duration_s = [70.0]\n",
+            base_scenario.display().to_string()
+        ),
+    )
+    .unwrap();
+    let disjoint = run_to(&other_seeds, "disjoint");
+    let r = compare::compare(&a, &disjoint, &o).unwrap();
+    let gated: Vec<_> = r
+        .comparisons
+        .iter()
+        .filter(|c| c.finding != Finding::NotGated && c.finding != Finding::Untestable)
+        .collect();
+    assert!(gated.len() >= 20, "{}", gated.len());
+    assert!(gated.iter().all(|c| c.n_paired == 0));
+    let p = o.alpha / 2.0;
+    let bound = gated.len() as f64 * p + 3.0 * (gated.len() as f64 * p * (1.0 - p)).sqrt();
+    let flags = gated
+        .iter()
+        .filter(|c| c.finding == Finding::Regression)
+        .count();
+    assert!(
+        flags as f64 <= bound,
+        "{flags} of {} flagged\n{}",
+        gated.len(),
+        compare::markdown(&r)
+    );
 }

@@ -12,148 +12,15 @@ use crate::sweep::aggregate::{AggregateExpectation, Sample, Scope};
 use crate::sweep::junit::{self, TestCase, TestSuite, Verdict};
 use crate::sweep::run::{self, JobStatus, ResultRow, SweepRunError};
 use crate::sweep::spec::value_text;
-use crate::sweep::stats::{self, Summary};
-use serde::{Deserialize, Serialize};
+use crate::sweep::stats;
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
+
+pub use crate::sweep::summary::{AxisInfo, CellSummary, MergeSummary, SweepInfo};
 
 /// The merged rows, one line per job, in job order (a sweep folder of its own).
 pub const MERGED_ROWS: &str = "merged.jsonl";
-
-/// What `sweep.json` says of the sweep (all that merge needs).
-#[derive(Clone, Debug, Deserialize, Serialize)]
-pub struct SweepInfo {
-    /// Name.
-    pub name: String,
-    /// Description.
-    #[serde(default)]
-    pub description: String,
-    /// The base scenarios' names, in order.
-    pub scenarios: Vec<String>,
-    /// Seeds.
-    pub seeds: Vec<u64>,
-    /// The axes.
-    pub axes: Vec<AxisInfo>,
-    /// Cells: a value per axis.
-    pub cells: Vec<Vec<toml::Value>>,
-    /// Metric names to tabulate (empty: all).
-    pub metrics: Vec<String>,
-    /// Per-cell expectations.
-    pub per_cell: Vec<String>,
-    /// Overall expectations.
-    pub overall: Vec<String>,
-    /// The sweep's digest.
-    pub digest: String,
-}
-
-impl SweepInfo {
-    /// Reads a sweep folder's `sweep.json`.
-    pub fn read(dir: &Path) -> Result<SweepInfo, SweepRunError> {
-        let path = dir.join(run::SWEEP_JSON);
-        let bad = |message: String| SweepRunError::Io {
-            path: path.display().to_string(),
-            message,
-        };
-        let digest = run::read_sweep_digest(&path)?;
-        let text = std::fs::read_to_string(&path).map_err(|e| bad(e.to_string()))?;
-        let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
-        let s = v.get("sweep").ok_or_else(|| bad("no `sweep`".into()))?;
-        let get = |k: &str| s.get(k).cloned().unwrap_or(serde_json::Value::Null);
-        let from = |k: &str| -> Result<serde_json::Value, SweepRunError> {
-            let x = get(k);
-            if x.is_null() {
-                return Err(bad(format!("no `sweep.{k}`")));
-            }
-            Ok(x)
-        };
-        let parse = |k: &'static str, x: serde_json::Value| {
-            move |e: serde_json::Error| bad(format!("`sweep.{k}` ({x}): {e}"))
-        };
-        let scenarios: Vec<String> = from("scenarios")?
-            .as_array()
-            .map(|a| {
-                a.iter()
-                    .filter_map(|s| s.get("name").and_then(|n| n.as_str()).map(str::to_string))
-                    .collect()
-            })
-            .unwrap_or_default();
-        let axes: Vec<AxisInfo> =
-            serde_json::from_value(from("axes")?).map_err(parse("axes", get("axes")))?;
-        let cells: Vec<Vec<toml::Value>> = from("cells")?
-            .as_array()
-            .ok_or_else(|| bad("`sweep.cells` is not a list".into()))?
-            .iter()
-            .map(|c| {
-                serde_json::from_value(c.get("values").cloned().unwrap_or_default())
-                    .map_err(parse("cells", c.clone()))
-            })
-            .collect::<Result<_, _>>()?;
-        let texts = |k: &'static str| -> Result<Vec<String>, SweepRunError> {
-            serde_json::from_value(get(k)).map_err(parse(k, get(k)))
-        };
-        let info = SweepInfo {
-            name: from("name")?.as_str().unwrap_or_default().to_string(),
-            description: get("description").as_str().unwrap_or_default().to_string(),
-            scenarios,
-            seeds: serde_json::from_value(from("seeds")?).map_err(parse("seeds", get("seeds")))?,
-            axes,
-            cells,
-            metrics: texts("metrics")?,
-            per_cell: texts("per_cell")?,
-            overall: texts("overall")?,
-            digest,
-        };
-        if info.scenarios.is_empty() || info.seeds.is_empty() || info.cells.is_empty() {
-            return Err(bad("a sweep has scenarios, seeds and cells".into()));
-        }
-        Ok(info)
-    }
-
-    /// Number of jobs.
-    pub fn job_count(&self) -> usize {
-        self.scenarios.len() * self.cells.len() * self.seeds.len()
-    }
-
-    /// Job `j`'s (scenario, cell, seed) in the stable order.
-    pub fn job(&self, j: usize) -> (usize, usize, u64) {
-        let per_scenario = self.cells.len() * self.seeds.len();
-        let (s, rest) = (j / per_scenario, j % per_scenario);
-        (
-            s,
-            rest / self.seeds.len(),
-            self.seeds[rest % self.seeds.len()],
-        )
-    }
-
-    /// A cell's label: `key = value, ...` (or `all` without axes).
-    pub fn cell_label(&self, cell: usize) -> String {
-        if self.axes.is_empty() {
-            return "all".into();
-        }
-        self.axes
-            .iter()
-            .zip(&self.cells[cell])
-            .map(|(a, v)| format!("{} = {}", a.key, value_text(v)))
-            .collect::<Vec<_>>()
-            .join(", ")
-    }
-}
-
-/// What merge knows of an axis.
-#[derive(Clone, Debug, Deserialize, Serialize)]
-pub struct AxisInfo {
-    /// Dotted scenario key.
-    pub key: String,
-    /// Its values (in the sweep file's order).
-    pub values: Vec<toml::Value>,
-    /// Plot label.
-    #[serde(default)]
-    pub label: Option<String>,
-    /// Plot positions of the values.
-    #[serde(default)]
-    pub x: Option<Vec<f64>>,
-}
 
 /// Options of [`merge`].
 #[derive(Clone, Debug, Default)]
@@ -164,74 +31,6 @@ pub struct MergeOptions {
     pub partial: bool,
     /// Also write JUnit XML here.
     pub junit: Option<PathBuf>,
-}
-
-/// One cell of one scenario.
-#[derive(Clone, Debug, Serialize)]
-pub struct CellSummary {
-    /// Scenario name.
-    pub scenario: String,
-    /// Cell number.
-    pub cell: usize,
-    /// `key = value, ...`.
-    pub label: String,
-    /// Jobs with a row.
-    pub jobs: usize,
-    /// Jobs that could not run.
-    pub errors: usize,
-    /// Fraction of jobs whose scenario expectations held.
-    pub pass_rate: f64,
-    /// Its 95 % Wilson interval.
-    pub pass_rate_ci95: (f64, f64),
-    /// Statistics per `metric.source`.
-    pub metrics: BTreeMap<String, Summary>,
-    /// The per-cell expectations.
-    pub expectations: Vec<ExpectationResult>,
-}
-
-/// The merged sweep (`summary.json`).
-#[derive(Clone, Debug, Serialize)]
-pub struct MergeSummary {
-    /// The sweep.
-    pub sweep: SweepInfo,
-    /// Jobs the sweep has.
-    pub jobs: usize,
-    /// Jobs with a row.
-    pub rows: usize,
-    /// Keys of jobs without a row.
-    pub missing: Vec<String>,
-    /// Keys of jobs with more than one row (identical results: kept once).
-    pub duplicates: Vec<String>,
-    /// Keys of jobs whose rows disagree (the first is kept).
-    pub conflicts: Vec<String>,
-    /// Rows that did not parse.
-    pub damaged: Vec<String>,
-    /// Jobs by status.
-    pub passed: usize,
-    /// Jobs whose scenario expectations failed.
-    pub failed: usize,
-    /// Jobs that could not run.
-    pub errors: usize,
-    /// Per scenario and cell.
-    pub cells: Vec<CellSummary>,
-    /// The overall expectations.
-    pub overall: Vec<ExpectationResult>,
-    /// Whether every job has a row, none errored, and every expectation holds.
-    pub passed_all: bool,
-}
-
-impl MergeSummary {
-    /// Exit code: 0 everything holds, 1 an expectation fails or a job could not run, 2 the
-    /// results are incomplete.
-    pub fn exit_code(&self, partial: bool) -> u8 {
-        if (!self.missing.is_empty() && !partial) || !self.conflicts.is_empty() {
-            2
-        } else if self.passed_all {
-            0
-        } else {
-            1
-        }
-    }
 }
 
 /// The rows of the sweep folders `dirs` (all of one sweep), deduplicated, in job order.
@@ -267,6 +66,16 @@ pub fn collect(
             damaged.push(format!(
                 "row of job {} ({}) belongs to another sweep",
                 r.job, r.key
+            ));
+            continue;
+        }
+        // A row must say what its job number says (a hand-edited or damaged row must not
+        // land in another cell).
+        let (s, c, seed) = info.job(r.job);
+        if info.scenarios[s] != r.scenario || c != r.cell || seed != r.seed {
+            damaged.push(format!(
+                "row of job {} ({}) does not match the sweep's job (scenario {}, cell {c}, seed {seed})",
+                r.job, r.key, info.scenarios[s]
             ));
             continue;
         }
@@ -662,16 +471,11 @@ pub fn markdown(info: &SweepInfo, s: &MergeSummary, plots: &[(String, String)]) 
     }
     let _ = writeln!(
         md,
-        "{} job(s): {} scenario(s) × {} cell(s) × {} seed(s); {} with results ({} pass, {} fail, \
-         {} error){}.\n\n**{}**\n",
-        s.jobs,
+        "{} scenario(s) × {} cell(s) × {} seed(s); {}{}.\n\n**{}**\n",
         info.scenarios.len(),
         info.cells.len(),
         info.seeds.len(),
-        s.rows,
-        s.passed,
-        s.failed,
-        s.errors,
+        s.counts(),
         if s.missing.is_empty() {
             String::new()
         } else {
@@ -775,4 +579,81 @@ pub fn markdown(info: &SweepInfo, s: &MergeSummary, plots: &[(String, String)]) 
         );
     }
     md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A sweep folder of one scenario, two cells, two seeds, with `rows` as its rows file.
+    fn folder(rows: &str) -> tempfile::TempDir {
+        let d = tempfile::tempdir().unwrap();
+        let sweep = serde_json::json!({"digest": "D", "sweep": {
+            "name": "t", "scenarios": [{"name": "s"}], "seeds": [1, 2],
+            "axes": [{"key": "k", "values": [1, 2]}],
+            "cells": [{"values": [1]}, {"values": [2]}],
+            "metrics": [], "per_cell": ["mean(ate_rmse_m.eif) < 1"], "overall": []}});
+        std::fs::create_dir_all(d.path().join(run::ROWS_DIR)).unwrap();
+        std::fs::write(d.path().join(run::SWEEP_JSON), sweep.to_string()).unwrap();
+        std::fs::write(d.path().join(run::ROWS_DIR).join("a.jsonl"), rows).unwrap();
+        d
+    }
+
+    fn row(job: usize, cell: usize, seed: u64, ate: f64) -> String {
+        serde_json::json!({"job": job, "key": format!("s/c{cell}/s{seed}"), "scenario": "s",
+            "cell": cell, "axes": {"k": cell + 1}, "seed": seed, "status": "pass",
+            "metrics": {"ate_rmse_m.eif": ate}, "scenario_digest": "x", "sweep_digest": "D",
+            "version": "0", "wall_s": 1.0})
+        .to_string()
+            + "\n"
+    }
+
+    #[test]
+    fn damaged_duplicated_conflicting_and_missing_rows_are_reported() {
+        let rows = [
+            row(0, 0, 1, 0.5),
+            row(0, 0, 1, 0.5), // duplicate, identical
+            row(1, 0, 2, 0.7),
+            row(1, 0, 2, 0.9), // conflict
+            row(2, 0, 1, 0.1), // says cell 0 seed 1, but job 2 is cell 1 seed 1
+            "{\"job\": 3, garbage\n".to_string(),
+            row(7, 1, 2, 0.1), // no such job
+        ]
+        .concat();
+        let d = folder(&rows);
+        let (info, got, s) = collect(&[d.path().to_path_buf()]).unwrap();
+        assert_eq!(got.len(), 2);
+        assert_eq!(s.duplicates, vec!["s/c0/s1"]);
+        assert_eq!(s.conflicts, vec!["s/c0/s2"]);
+        assert_eq!(s.missing, vec!["s/c1/s1", "s/c1/s2"]);
+        assert_eq!(s.damaged.len(), 3, "{:?}", s.damaged);
+        let s = summarize(&info, &got, s).unwrap();
+        assert_eq!(s.exit_code(true), 2, "conflicting results are never usable");
+        // Cell 0: mean 0.6 < 1 holds; cell 1 has no values: its expectation fails.
+        assert!(s.cells[0].expectations[0].holds);
+        assert!(!s.cells[1].expectations[0].holds);
+    }
+
+    #[test]
+    fn a_sweep_description_that_does_not_add_up_is_refused() {
+        let d = folder("");
+        let p = d.path().join(run::SWEEP_JSON);
+        let text = std::fs::read_to_string(&p).unwrap();
+        for (from, to) in [
+            ("{\"values\":[2]}", "{\"values\":[]}"),
+            ("\"seeds\":[1,2]", "\"seeds\":[]"),
+            ("\"seeds\":[1,2]", "\"seeds\":\"x\""),
+        ] {
+            assert!(text.contains(from), "{from} in {text}");
+            std::fs::write(&p, text.replace(from, to)).unwrap();
+            assert!(SweepInfo::read(d.path()).is_err(), "{to}");
+        }
+    }
+
+    #[test]
+    fn csv_fields_are_quoted_as_rfc_4180_says() {
+        assert_eq!(csv_field("a"), "a");
+        assert_eq!(csv_field("[0.4, 0.3]"), "\"[0.4, 0.3]\"");
+        assert_eq!(csv_field("say \"hi\""), "\"say \"\"hi\"\"\"");
+    }
 }

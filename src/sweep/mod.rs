@@ -5,6 +5,7 @@
 //! - [`spec`]: sweep files, validated and expanded into jobs in a stable order.
 //! - [`aggregate`]: the expectation language over statistics (`p95(...) <= 0.4`).
 //! - [`run`]: a shard's jobs, each an ordinary run, one JSON row per job, resumable.
+//! - [`summary`]: what a merged sweep is (the sweep's description, statistics per cell).
 //! - [`merge`]: rows of all shards → `results.csv`, `summary.json`, `sweep.md`, JUnit.
 //! - [`plots`]: metric against axis with confidence bands; heat maps for two axes.
 //! - [`compare`]: the regression gate: two sweeps, paired by seed, rank tests.
@@ -19,3 +20,4 @@ pub mod plots;
 pub mod run;
 pub mod spec;
 pub mod stats;
+pub mod summary;

@@ -9,9 +9,9 @@
 use crate::scoring::plots::{
     PlotError, SIZE_PX, chart_builder, draw_err, draw_legend, padded_range, source_colour,
 };
-use crate::sweep::merge::{MergeSummary, SweepInfo};
 use crate::sweep::run::SweepRunError;
 use crate::sweep::spec::value_text;
+use crate::sweep::summary::{MergeSummary, SweepInfo};
 use plotters::prelude::*;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -350,6 +350,18 @@ fn viridis(t: f64) -> RGBColor {
     RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
 }
 
+/// The label of the grid column (or row) at `at`: the axis value there, nothing between.
+fn grid_label(values: &[f64], scale: &AxisScale, at: f64) -> String {
+    let i = at.round();
+    if (at - i).abs() > 1e-9 || i < 0.0 {
+        return String::new();
+    }
+    values
+        .get(i as usize)
+        .map(|v| category_label(scale, *v))
+        .unwrap_or_default()
+}
+
 fn heat_map(
     title: &str,
     sa: &AxisScale,
@@ -377,24 +389,8 @@ fn heat_map(
         let mut chart = chart_builder(&root, title)
             .build_cartesian_2d(-0.5..xs.len() as f64 - 0.5, -0.5..ys.len() as f64 - 0.5)
             .map_err(draw_err)?;
-        let xl = |x: &f64| {
-            let i = x.round();
-            if (x - i).abs() > 1e-9 || i < 0.0 {
-                return String::new();
-            }
-            xs.get(i as usize)
-                .map(|v| category_label(sa, *v))
-                .unwrap_or_default()
-        };
-        let yl = |y: &f64| {
-            let i = y.round();
-            if (y - i).abs() > 1e-9 || i < 0.0 {
-                return String::new();
-            }
-            ys.get(i as usize)
-                .map(|v| category_label(sb, *v))
-                .unwrap_or_default()
-        };
+        let xl = |x: &f64| grid_label(&xs, sa, *x);
+        let yl = |y: &f64| grid_label(&ys, sb, *y);
         chart
             .configure_mesh()
             .disable_mesh()
@@ -406,10 +402,16 @@ fn heat_map(
             .y_desc(sb.title.as_str())
             .draw()
             .map_err(draw_err)?;
-        chart
-            .draw_series(cells.iter().map(|&(x, y, v)| {
-                let (i, j) = (idx(&xs, x), idx(&ys, y));
+        // Grid position and colour-scale position of each cell.
+        let placed: Vec<(f64, f64, f64, f64)> = cells
+            .iter()
+            .map(|&(x, y, v)| {
                 let t = if hi > lo { (v - lo) / (hi - lo) } else { 0.5 };
+                (idx(&xs, x), idx(&ys, y), v, t)
+            })
+            .collect();
+        chart
+            .draw_series(placed.iter().map(|&(i, j, _, t)| {
                 Rectangle::new(
                     [(i - 0.5, j - 0.5), (i + 0.5, j + 0.5)],
                     viridis(t).filled(),
@@ -417,9 +419,7 @@ fn heat_map(
             }))
             .map_err(draw_err)?;
         chart
-            .draw_series(cells.iter().map(|&(x, y, v)| {
-                let (i, j) = (idx(&xs, x), idx(&ys, y));
-                let t = if hi > lo { (v - lo) / (hi - lo) } else { 0.5 };
+            .draw_series(placed.iter().map(|&(i, j, v, t)| {
                 let colour = if t > 0.6 { BLACK } else { WHITE };
                 Text::new(
                     format!("{v:.3}"),
@@ -443,7 +443,7 @@ mod tests {
             description: String::new(),
             scenarios: vec!["s".into()],
             seeds: vec![1],
-            axes: vec![crate::sweep::merge::AxisInfo {
+            axes: vec![crate::sweep::summary::AxisInfo {
                 key: "k".into(),
                 values: Vec::new(),
                 label: None,

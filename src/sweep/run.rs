@@ -37,12 +37,12 @@ pub enum SweepRunError {
     #[error(transparent)]
     Sweep(#[from] SweepError),
     /// A cell's scenario cannot be set up (world, robot, route, sensors).
-    #[error("{key}: {source}")]
+    #[error("{key}: {error}")]
     Setup {
         /// The first job of the cell.
         key: String,
         /// Why.
-        source: Box<RunError>,
+        error: Box<RunError>,
     },
     /// An option is unusable.
     #[error("{0}")]
@@ -409,9 +409,9 @@ pub fn run_shard(sweep: &Sweep, opts: &SweepOptions) -> Result<ShardOutcome, Swe
     for j in &mine {
         if seen.insert((j.scenario, j.cell)) {
             let sc = sweep.job_scenario(j)?;
-            runner::validate(&sc).map_err(|source| SweepRunError::Setup {
+            runner::validate(&sc).map_err(|e| SweepRunError::Setup {
                 key: sweep.job_key(j),
-                source: Box::new(source),
+                error: Box::new(e),
             })?;
         }
     }

@@ -68,7 +68,7 @@ pub enum SweepError {
         message: String,
     },
     /// A cell's values cannot be applied to the scenario, or make it invalid.
-    #[error("{0}")]
+    #[error(transparent)]
     Scenario(#[from] ScenarioError),
 }
 

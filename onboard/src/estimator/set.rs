@@ -135,7 +135,7 @@ impl AnyEstimator {
 /// The estimation stage the runner calls: validate, re-order by stamp, fan out.
 ///
 /// ```
-/// use vinebench::estimator::{EstimatorSet, EstimatorsParams};
+/// use vinebench_onboard::estimator::{EstimatorSet, EstimatorsParams};
 /// use vinebench_msgs::{geodesy::{Geodetic, LocalEnu}, StaticTransforms};
 /// let enu = LocalEnu::new(Geodetic { lat_deg: 40.4545, lon_deg: 17.9085, alt_m: 55.0 });
 /// let set = EstimatorSet::new(&EstimatorsParams::default(), StaticTransforms::new("base_link"), enu)

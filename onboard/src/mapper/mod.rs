@@ -46,7 +46,7 @@
 //!    MJCF file.
 //!
 //! ```
-//! use vinebench::mapper::{Mapper, MapperParams};
+//! use vinebench_onboard::mapper::{Mapper, MapperParams};
 //! use vinebench_msgs::{StaticTransforms, Trajectory};
 //! let mapper = Mapper::new(MapperParams::default(), StaticTransforms::new("base_link"))
 //!     .expect("valid parameters");

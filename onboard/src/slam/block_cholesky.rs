@@ -23,7 +23,7 @@
 //!
 //! ```
 //! use nalgebra::{Matrix6, Vector6};
-//! use vinebench::slam::block_cholesky::{BlockCholesky, BlockStructure};
+//! use vinebench_onboard::slam::block_cholesky::{BlockCholesky, BlockStructure};
 //!
 //! // A chain of three poses, 0 - 1 - 2: H = [[2I, -I, 0], [-I, 2I, -I], [0, -I, 2I]].
 //! let s = BlockStructure::new(3, [(0, 1), (1, 2)]);

@@ -21,8 +21,8 @@
 //!   keyframes, islands of consecutive keyframe ids, temporal consistency.
 //!
 //! ```
-//! use vinebench::slam::Descriptor;
-//! use vinebench::slam::bow::{Database, Vocabulary, VocabularyConfig, score};
+//! use vinebench_onboard::slam::Descriptor;
+//! use vinebench_onboard::slam::bow::{Database, Vocabulary, VocabularyConfig, score};
 //! // Four "images" of 50 distinct descriptors each.
 //! let images: Vec<Vec<Descriptor>> = (0..4u64)
 //!     .map(|i| {
@@ -43,7 +43,7 @@
 //!     db.add(id as u32, voc.transform(img))?;
 //! }
 //! assert_eq!(db.query(&a, 1, |_| false)[0].0, 0);
-//! # Ok::<(), vinebench::slam::bow::BowError>(())
+//! # Ok::<(), vinebench_onboard::slam::bow::BowError>(())
 //! ```
 
 use std::collections::BTreeMap;

@@ -13,7 +13,7 @@
 //!
 //! ```
 //! use nalgebra::{UnitQuaternion, Vector3};
-//! use vinebench::slam::gyro::GyroBuffer;
+//! use vinebench_onboard::slam::gyro::GyroBuffer;
 //! use vinebench_msgs::Nanos;
 //!
 //! let mut gyro = GyroBuffer::default();

@@ -33,7 +33,7 @@
 //! - [`bench`](mod@bench): timing of the front-end for `vinebench bench`.
 //!
 //! ```
-//! use vinebench::slam::{FrontEndConfig, GrayImage, StereoCamera, StereoFrame, StereoFrontEnd};
+//! use vinebench_onboard::slam::{FrontEndConfig, GrayImage, StereoCamera, StereoFrame, StereoFrontEnd};
 //! let img = GrayImage::from_fn(320, 240, |x, y| ((x * 7 + y * 13) % 31 * 8) as u8);
 //! let mut fe = StereoFrontEnd::new(FrontEndConfig::default()).expect("default config");
 //! let mut frame = StereoFrame::default();

@@ -64,7 +64,7 @@
 //!
 //! ```
 //! use nalgebra::{Isometry3, Matrix6, Vector3};
-//! use vinebench::slam::pose_graph::{PoseGraph, PoseGraphConfig};
+//! use vinebench_onboard::slam::pose_graph::{PoseGraph, PoseGraphConfig};
 //!
 //! // Four poses along x, 1 m apart; odometry says 1 m steps, the loop edge says the last
 //! // pose is 3.3 m from the first.

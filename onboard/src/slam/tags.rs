@@ -55,8 +55,8 @@
 //! the `apriltag` crate never frees (a few hundred bytes per thread and `max_hamming`).
 //!
 //! ```
-//! use vinebench::slam::GrayImage;
-//! use vinebench::slam::tags::{TagCamera, TagConfig, TagDetector};
+//! use vinebench_onboard::slam::GrayImage;
+//! use vinebench_onboard::slam::tags::{TagCamera, TagConfig, TagDetector};
 //! let camera = TagCamera {
 //!     fx: 400.0, fy: 400.0, cx: 319.5, cy: 239.5,
 //!     d: [-0.05, 0.01, 0.0, 0.0, 0.0], width: 640, height: 480,
