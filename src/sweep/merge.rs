@@ -13,6 +13,7 @@ use crate::sweep::junit::{self, TestCase, TestSuite, Verdict};
 use crate::sweep::run::{self, JobStatus, ResultRow, SweepRunError};
 use crate::sweep::spec::value_text;
 use crate::sweep::stats;
+use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -179,13 +180,26 @@ pub fn summarize(
     let per_cell = parse(&info.per_cell, Scope::Cell)?;
     let overall = parse(&info.overall, Scope::Overall)?;
     let cols = columns(info, rows);
-    for (si, scenario) in info.scenarios.iter().enumerate() {
-        for cell in 0..info.cells.len() {
-            let in_cell: Vec<&ResultRow> = rows
-                .iter()
-                .filter(|r| r.scenario == *scenario && r.cell == cell)
-                .collect();
-            let _ = si;
+    // Rows by (scenario, cell); cells summarized in parallel (each bootstrap has its own
+    // seed, so the result does not depend on the thread count).
+    let mut groups: BTreeMap<(&str, usize), Vec<&ResultRow>> = BTreeMap::new();
+    for r in rows {
+        groups
+            .entry((r.scenario.as_str(), r.cell))
+            .or_default()
+            .push(r);
+    }
+    let keys: Vec<(&String, usize)> = info
+        .scenarios
+        .iter()
+        .flat_map(|s| (0..info.cells.len()).map(move |c| (s, c)))
+        .collect();
+    summary.cells = keys
+        .par_iter()
+        .map(|&(scenario, cell)| {
+            let in_cell: &[&ResultRow] = groups
+                .get(&(scenario.as_str(), cell))
+                .map_or(&[], Vec::as_slice);
             let passed = in_cell
                 .iter()
                 .filter(|r| r.status == JobStatus::Pass)
@@ -202,8 +216,8 @@ pub fn summarize(
                         .then(|| (c.clone(), stats::summarize(&xs, seed_of(scenario, cell, c))))
                 })
                 .collect();
-            let s = samples(&in_cell);
-            summary.cells.push(CellSummary {
+            let s = samples(in_cell);
+            CellSummary {
                 scenario: scenario.clone(),
                 cell,
                 label: info.cell_label(cell),
@@ -220,9 +234,9 @@ pub fn summarize(
                 pass_rate_ci95: stats::wilson_interval(passed, in_cell.len(), stats::Z95),
                 metrics,
                 expectations: per_cell.iter().map(|x| x.evaluate(&s)).collect(),
-            });
-        }
-    }
+            }
+        })
+        .collect();
     let all: Vec<&ResultRow> = rows.iter().collect();
     let s = samples(&all);
     summary.overall = overall.iter().map(|x| x.evaluate(&s)).collect();

@@ -156,12 +156,7 @@ pub fn write_plots(
             }
         }
     }
-    let varied: Vec<usize> = (0..info.axes.len())
-        .filter(|&a| {
-            let first = &info.cells[0][a];
-            info.cells.iter().any(|c| &c[a] != first)
-        })
-        .collect();
+    let varied: Vec<usize> = (0..info.axes.len()).filter(|&a| info.varies(a)).collect();
     for &a in &varied {
         let scale = axis_scale(info, a);
         for (metric, sources) in &metrics {

@@ -154,20 +154,6 @@ pub struct Cell {
     pub values: Vec<toml::Value>,
 }
 
-impl Cell {
-    /// `key = value, ...` for people.
-    pub fn label(&self, axes: &[Axis]) -> String {
-        if axes.is_empty() {
-            return "all".into();
-        }
-        axes.iter()
-            .zip(&self.values)
-            .map(|(a, v)| format!("{} = {}", a.key, value_text(v)))
-            .collect::<Vec<_>>()
-            .join(", ")
-    }
-}
-
 /// One job: a scenario, a cell and a seed.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Job {

@@ -138,17 +138,31 @@ impl SweepInfo {
         )
     }
 
-    /// A cell's label: `key = value, ...` (or `all` without axes).
+    /// A cell's label: `key = value, ...` of the axes that vary (`all` without any).
     pub fn cell_label(&self, cell: usize) -> String {
-        if self.axes.is_empty() {
-            return "all".into();
-        }
-        self.axes
-            .iter()
-            .zip(&self.cells[cell])
-            .map(|(a, v)| format!("{} = {}", a.key, value_text(v)))
+        let label = (0..self.axes.len())
+            .filter(|&a| self.varies(a))
+            .map(|a| {
+                format!(
+                    "{} = {}",
+                    self.axes[a].key,
+                    value_text(&self.cells[cell][a])
+                )
+            })
             .collect::<Vec<_>>()
-            .join(", ")
+            .join(", ");
+        if label.is_empty() {
+            "all".into()
+        } else {
+            label
+        }
+    }
+
+    /// Whether axis `a` takes more than one value over the cells (a single-valued axis
+    /// only sets a constant: labels and plots leave it out).
+    pub fn varies(&self, a: usize) -> bool {
+        let first = &self.cells[0][a];
+        self.cells.iter().any(|c| &c[a] != first)
     }
 }
 
