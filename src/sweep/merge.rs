@@ -414,13 +414,7 @@ pub fn merge(dirs: &[PathBuf], opts: &MergeOptions) -> Result<MergeSummary, Swee
     let (info, rows, summary) = collect(dirs)?;
     let summary = summarize(&info, &rows, summary)?;
     let out = &opts.out_dir;
-    let write = |name: &str, bytes: &[u8]| {
-        let p = out.join(name);
-        crate::fsio::write_atomic(&p, bytes).map_err(|e| SweepRunError::Io {
-            path: p.display().to_string(),
-            message: e.to_string(),
-        })
-    };
+    let write = |name: &str, bytes: &[u8]| run::write_file(&out.join(name), bytes);
     let cols = columns(&info, &rows);
     write("results.csv", results_csv(&info, &rows, &cols).as_bytes())?;
     write("timing.csv", timing_csv(&rows).as_bytes())?;
@@ -437,10 +431,7 @@ pub fn merge(dirs: &[PathBuf], opts: &MergeOptions) -> Result<MergeSummary, Swee
     };
     if !dirs.iter().any(same) {
         let src = dirs[0].join(run::SWEEP_JSON);
-        let sweep_json = std::fs::read(&src).map_err(|e| SweepRunError::Io {
-            path: src.display().to_string(),
-            message: e.to_string(),
-        })?;
+        let sweep_json = std::fs::read(&src).map_err(run::io_err(&src))?;
         write(run::SWEEP_JSON, &sweep_json)?;
         let mut merged = Vec::new();
         for r in &rows {
@@ -461,10 +452,7 @@ pub fn merge(dirs: &[PathBuf], opts: &MergeOptions) -> Result<MergeSummary, Swee
             &format!("sweep {}", info.name),
             &junit_suites(&info, &rows, &summary),
         );
-        crate::fsio::write_atomic(j, xml.as_bytes()).map_err(|e| SweepRunError::Io {
-            path: j.display().to_string(),
-            message: e.to_string(),
-        })?;
+        run::write_file(j, xml.as_bytes())?;
     }
     Ok(summary)
 }

@@ -209,10 +209,7 @@ pub fn write_plots(
             let svg = line_plot(&title, &scale, metric, &lines).map_err(plot_err)?;
             let name = format!("{}__{}.svg", file_stem(metric), file_stem(&scale.title));
             let p = dir.join(&name);
-            crate::fsio::write_atomic(&p, svg.as_bytes()).map_err(|e| SweepRunError::Io {
-                path: p.display().to_string(),
-                message: e.to_string(),
-            })?;
+            crate::sweep::run::write_file(&p, svg.as_bytes())?;
             out.push((title, format!("plots/{name}")));
         }
     }
@@ -239,10 +236,7 @@ pub fn write_plots(
             let svg = heat_map(&title, &sa, &sb, &cells).map_err(plot_err)?;
             let name = format!("heatmap__{}.svg", file_stem(col));
             let p = dir.join(&name);
-            crate::fsio::write_atomic(&p, svg.as_bytes()).map_err(|e| SweepRunError::Io {
-                path: p.display().to_string(),
-                message: e.to_string(),
-            })?;
+            crate::sweep::run::write_file(&p, svg.as_bytes())?;
             out.push((title, format!("plots/{name}")));
         }
     }

@@ -76,7 +76,8 @@ pub enum SweepRunError {
     },
 }
 
-fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SweepRunError + '_ {
+/// Maps an I/O error on `path` to [`SweepRunError::Io`] naming the file.
+pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SweepRunError + '_ {
     move |e| SweepRunError::Io {
         path: path.display().to_string(),
         message: e.to_string(),
@@ -309,11 +310,16 @@ fn claim_folder(sweep: &Sweep, dir: &Path) -> Result<(), SweepRunError> {
     if std::fs::read_to_string(&path).is_ok_and(|t| t == text) {
         return Ok(());
     }
-    crate::fsio::write_atomic(&path, text.as_bytes()).map_err(io_err(&path))
+    write_file(&path, text.as_bytes())
 }
 
 /// The digest recorded in a `sweep.json`.
 pub fn read_sweep_digest(path: &Path) -> Result<String, SweepRunError> {
+    Ok(read_sweep_json(path)?.0)
+}
+
+/// A `sweep.json` (size bounded) parsed, with the digest it records.
+pub fn read_sweep_json(path: &Path) -> Result<(String, serde_json::Value), SweepRunError> {
     let bad = |message: String| SweepRunError::Io {
         path: path.display().to_string(),
         message,
@@ -325,10 +331,17 @@ pub fn read_sweep_digest(path: &Path) -> Result<String, SweepRunError> {
     let text = std::fs::read_to_string(path).map_err(io_err(path))?;
     let v: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| bad(format!("not a sweep description: {e}")))?;
-    v.get("digest")
+    let digest = v
+        .get("digest")
         .and_then(|d| d.as_str())
         .map(str::to_string)
-        .ok_or_else(|| bad("no `digest` in the sweep description".into()))
+        .ok_or_else(|| bad("no `digest` in the sweep description".into()))?;
+    Ok((digest, v))
+}
+
+/// Writes a file of the sweep folder whole or not at all ([`crate::fsio::write_atomic`]).
+pub(crate) fn write_file(path: &Path, bytes: &[u8]) -> Result<(), SweepRunError> {
+    crate::fsio::write_atomic(path, bytes).map_err(io_err(path))
 }
 
 /// Reads every rows file of a sweep folder. A line that does not parse (a shard killed

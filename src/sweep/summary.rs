@@ -44,9 +44,7 @@ impl SweepInfo {
             path: path.display().to_string(),
             message,
         };
-        let digest = run::read_sweep_digest(&path)?;
-        let text = std::fs::read_to_string(&path).map_err(|e| bad(e.to_string()))?;
-        let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        let (digest, v) = run::read_sweep_json(&path)?;
         let s = v.get("sweep").ok_or_else(|| bad("no `sweep`".into()))?;
         let get = |k: &str| s.get(k).cloned().unwrap_or(serde_json::Value::Null);
         let from = |k: &str| -> Result<serde_json::Value, SweepRunError> {
