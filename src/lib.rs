@@ -16,12 +16,14 @@
 //! - [`sweep`]: experiments: a scenario over seeds and parameters, sharded across
 //!   machines, merged into statistics, plots, JUnit and a regression gate.
 //! - [`bench`]: `vinebench bench`, the speed and memory figures of `docs/PERFORMANCE.md`.
-//! - [`fsio`]: whole-or-nothing file writes.
+//! - [`fsio`]: whole-or-nothing file writes and bounded reads.
+//! - [`output`]: standard output that survives a closed pipe or a full disk.
 //! - [`vocabulary`]: the SLAM's bag-of-words vocabulary trained on the keyframes of a
 //!   simulated scenario (`vinebench vocabulary`).
 
 pub mod bench;
 pub mod fsio;
+pub mod output;
 pub mod recording;
 pub mod replay;
 pub mod runner;

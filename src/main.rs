@@ -9,6 +9,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use vinebench::runner::{self, RunOptions};
 use vinebench::scenario::LoadedScenario;
 use vinebench::scoring::{self, metrics::PairsFrom};
+use vinebench::{out, outln};
 use vinebench_msgs::Nanos;
 
 /// Exit code: every expectation holds.
@@ -17,8 +18,10 @@ const EXIT_PASS: u8 = 0;
 const EXIT_FAIL: u8 = 1;
 /// Exit code: bad input (scenario, URDF, TUM file, arguments) or an I/O failure.
 const EXIT_ERROR: u8 = 2;
-/// Exit code: interrupted by Ctrl-C (the recording so far is finalized).
+/// Exit code: interrupted by Ctrl-C or SIGTERM (the recording so far is finalized).
 const EXIT_INTERRUPTED: u8 = 130;
+/// The most worker threads `--threads` accepts.
+const MAX_THREADS: i64 = 1024;
 
 #[derive(Parser)]
 #[command(
@@ -30,7 +33,7 @@ const EXIT_INTERRUPTED: u8 = 130;
         and faults, the estimators to run and what must hold. `vinebench run` simulates it, \
         runs the estimators on the sensor messages alone, scores them against ground truth \
         and writes a run folder. The exit code tells CI whether the expectations held: \
-        0 all hold, 1 one fails, 2 bad input, 130 interrupted (Ctrl-C; the run folder keeps \
+        0 all hold, 1 one fails, 2 bad input, 130 interrupted (Ctrl-C or SIGTERM; the run folder keeps \
         a finalized recording.mcap).",
     after_help = "Examples:\n  \
         vinebench run scenarios/row-loop-rtk.toml              run one scenario, folder in runs/\n  \
@@ -47,9 +50,10 @@ const EXIT_INTERRUPTED: u8 = 130;
         vinebench bench                                        speed figures for docs/PERFORMANCE.md"
 )]
 struct Cli {
-    /// Worker threads for parallel stages (results do not depend on it).
-    #[arg(long, global = true, value_name = "N")]
-    threads: Option<usize>,
+    /// Worker threads for parallel stages, 1 to 1024 (results do not depend on it).
+    #[arg(long, global = true, value_name = "N",
+          value_parser = clap::value_parser!(u16).range(1..=MAX_THREADS))]
+    threads: Option<u16>,
     #[command(subcommand)]
     command: Command,
 }
@@ -59,18 +63,24 @@ enum Command {
     /// Run one scenario end to end and write its run folder.
     #[command(after_help = "Examples:\n  \
         vinebench run scenarios/row-loop-rtk-outage.toml\n  \
-        vinebench run scenarios/defaults.toml --out /tmp/defaults-run --quiet\n\n\
+        vinebench run scenarios/defaults.toml --out /tmp/defaults-run --quiet\n  \
+        vinebench run scenarios/defaults.toml --out /tmp/defaults-run --replace   # run again there\n\n\
         The run folder holds recording.mcap (every message, ground truth and estimate; ROS 2 \
         MCAP for Foxglove and `ros2 bag play`), ground_truth.tum, estimate_<source>.tum, \
         report.json, report.md (with trajectories.svg, errors.svg, altitude.svg), \
         scenario.resolved.toml and timing.json. Ctrl-C stops the run and finalizes the \
-        recording (exit code 130).")]
+        recording; so does SIGTERM (exit code 130).")]
     Run {
         /// Scenario file.
         scenario: PathBuf,
-        /// Run folder (default: runs/<name>-<UTC stamp>/).
+        /// Run folder (default: runs/<name>-<UTC stamp>/, made unique). It must be new or
+        /// empty, and is locked while the run writes it.
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
+        /// Reuse a non-empty --out: clear a previous run's files there first (other files
+        /// are kept).
+        #[arg(long, requires = "out")]
+        replace: bool,
         /// No progress bar and no summary.
         #[arg(long)]
         quiet: bool,
@@ -288,11 +298,11 @@ struct ScoreArgs {
     reference: PathBuf,
     /// Estimated TUM file.
     estimate: PathBuf,
-    /// Maximum stamp difference for association, s (evo's --t_max_diff).
-    #[arg(long, default_value_t = 0.01)]
+    /// Maximum stamp difference for association, s (evo's --t_max_diff; finite, >= 0).
+    #[arg(long, default_value_t = 0.01, value_parser = non_negative_seconds)]
     t_max_diff: f64,
-    /// RPE path distance, m (evo_rpe --delta D --delta_unit m).
-    #[arg(long, default_value_t = 1.0)]
+    /// RPE path distance, m (evo_rpe --delta D --delta_unit m; finite, > 0).
+    #[arg(long, default_value_t = 1.0, value_parser = positive_metres)]
     delta: f64,
     /// Align with SE(3) Umeyama before computing errors (evo's -a).
     #[arg(long)]
@@ -306,19 +316,41 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     if let Some(n) = cli.threads
         && let Err(e) = rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
+            .num_threads(usize::from(n))
             .build_global()
     {
         eprintln!("error: --threads {n}: {e}");
         return ExitCode::from(EXIT_ERROR);
     }
-    match dispatch(cli.command) {
-        Ok(code) => ExitCode::from(code),
+    let code = match dispatch(cli.command) {
+        Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::from(EXIT_ERROR)
+            eprintln!("error: {}", error_chain(&e));
+            EXIT_ERROR
         }
+    };
+    if let Some(e) = vinebench::output::error() {
+        eprintln!("error: cannot write to standard output: {e}");
+        return ExitCode::from(EXIT_ERROR);
     }
+    ExitCode::from(code)
+}
+
+/// An error and its causes joined by `: `, leaving out a cause whose text the message
+/// already holds (`file: No such file or directory (os error 2)` said once, not twice).
+fn error_chain(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let c = cause.to_string();
+        if text.contains(&c) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&c);
+    }
+    text
 }
 
 fn dispatch(cmd: Command) -> Result<u8> {
@@ -326,6 +358,7 @@ fn dispatch(cmd: Command) -> Result<u8> {
         Command::Run {
             scenario,
             out,
+            replace,
             quiet,
         } => {
             let sc = LoadedScenario::load(&scenario)?;
@@ -333,6 +366,7 @@ fn dispatch(cmd: Command) -> Result<u8> {
                 out_dir: out,
                 progress: !quiet,
                 stop: Some(interrupt_flag()),
+                replace,
                 ..RunOptions::default()
             };
             let outcome = match runner::run(&sc, &opts) {
@@ -367,9 +401,9 @@ fn dispatch(cmd: Command) -> Result<u8> {
                         runner::validate(&sc)?;
                         Ok(sc)
                     }) {
-                    Ok(sc) => println!("ok: {} ({})", p.display(), sc.scenario.name),
+                    Ok(sc) => outln!("ok: {} ({})", p.display(), sc.scenario.name),
                     Err(e) => {
-                        eprintln!("error: {e:#}");
+                        eprintln!("error: {}", error_chain(&e));
                         code = EXIT_ERROR;
                     }
                 }
@@ -377,7 +411,7 @@ fn dispatch(cmd: Command) -> Result<u8> {
             Ok(code)
         }
         Command::Defaults => {
-            print!("{}", vinebench_msgs::defaults::DEFAULTS_TOML);
+            out!("{}", vinebench_msgs::defaults::DEFAULTS_TOML);
             Ok(EXIT_PASS)
         }
         Command::Score(a) => score(&a),
@@ -398,7 +432,7 @@ fn dispatch(cmd: Command) -> Result<u8> {
             }
             let skipped: u64 = r.skipped.values().sum();
             let replayed: u64 = r.replayed.values().sum();
-            println!(
+            outln!(
                 "{}: {replayed} messages replayed, {skipped} skipped, {} did not decode",
                 r.name,
                 r.decode_errors.values().map(|(n, _)| n).sum::<u64>()
@@ -410,7 +444,7 @@ fn dispatch(cmd: Command) -> Result<u8> {
                     .and_then(|x| x.metric("ate_rmse_m"))
                     .map(|v| format!("ATE {v:.3} m"))
                     .unwrap_or_else(|| "no ground truth".into());
-                println!("{:<16} {:>7} poses  {ate}", s.name, s.poses);
+                outln!("{:<16} {:>7} poses  {ate}", s.name, s.poses);
             }
             for m in &r.maps {
                 let score = m
@@ -418,10 +452,20 @@ fn dispatch(cmd: Command) -> Result<u8> {
                     .zip(m.metric("map_f_score_2cm"))
                     .map(|(a, f)| format!("accuracy {a:.4} m, F@2cm {f:.3}"))
                     .unwrap_or_else(|| "not scored".into());
-                println!(
+                outln!(
                     "map {:<12} {:>9} points  {score}  ({}/)",
-                    m.source, m.stats.voxels, m.folder
+                    m.source,
+                    m.stats.voxels,
+                    m.folder
                 );
+            }
+            if let Some(why) = &r.nothing_usable {
+                // Estimators that produced nothing are not a pass: exit 2 as promised.
+                eprintln!(
+                    "error: {why} (report: {})",
+                    o.dir.join("report.md").display()
+                );
+                return Ok(EXIT_ERROR);
             }
             print_verdict(&r.expectations, r.passed, &o.dir);
             Ok(if r.passed { EXIT_PASS } else { EXIT_FAIL })
@@ -454,7 +498,7 @@ fn dispatch(cmd: Command) -> Result<u8> {
             if only == "all" || only == "sweep" {
                 figures.extend(vinebench::bench::sweep::sweep_figures(quick)?);
             }
-            println!("| figure | value | target |\n|---|---:|---:|");
+            outln!("| figure | value | target |\n|---|---:|---:|");
             for f in figures {
                 let target = f
                     .target
@@ -462,12 +506,15 @@ fn dispatch(cmd: Command) -> Result<u8> {
                     .unwrap_or_default();
                 // Three significant digits.
                 let digits = (2 - f.value.abs().max(1e-12).log10().floor() as i32).max(0) as usize;
-                println!(
+                outln!(
                     "| {} | {:.*} {} | {target} |",
-                    f.name, digits, f.value, f.unit
+                    f.name,
+                    digits,
+                    f.value,
+                    f.unit
                 );
             }
-            println!(
+            outln!(
                 "\n{} threads available; vinebench {} ({} build)",
                 std::thread::available_parallelism()
                     .map(|n| n.get())
@@ -484,8 +531,9 @@ fn dispatch(cmd: Command) -> Result<u8> {
     }
 }
 
-/// A flag that the first Ctrl-C (SIGINT) sets, so a run stops cleanly and finalizes its
-/// recording; a second Ctrl-C exits at once. Installed once per process.
+/// A flag that the first Ctrl-C (SIGINT), SIGTERM (what CI cancellations, `timeout` and
+/// Slurm send) or SIGHUP sets, so a run stops cleanly and finalizes its recording; a second
+/// signal exits at once. Installed once per process.
 fn interrupt_flag() -> Arc<AtomicBool> {
     static FLAG: std::sync::OnceLock<Arc<AtomicBool>> = std::sync::OnceLock::new();
     FLAG.get_or_init(|| {
@@ -495,7 +543,9 @@ fn interrupt_flag() -> Arc<AtomicBool> {
             if f.swap(true, Ordering::SeqCst) {
                 std::process::exit(i32::from(EXIT_INTERRUPTED));
             }
-            eprintln!("\ninterrupted: stopping the run and finalizing its recording (Ctrl-C again to quit now)");
+            eprintln!(
+                "\ninterrupted: stopping the run and finalizing its recording (Ctrl-C again to quit now)"
+            );
         }) {
             eprintln!("warning: cannot handle Ctrl-C ({e}); an interrupted run's recording may be unfinished");
         }
@@ -506,7 +556,7 @@ fn interrupt_flag() -> Arc<AtomicBool> {
 
 fn print_summary(o: &runner::RunOutcome) {
     let r = &o.report;
-    println!(
+    outln!(
         "{}: {:.0} s simulated in {:.2} s ({:.2}x real time), {:.1} m driven",
         r.scenario.name,
         r.run.duration_s,
@@ -514,14 +564,26 @@ fn print_summary(o: &runner::RunOutcome) {
         r.run.duration_s / o.wall_s.max(1e-9),
         r.run.distance_m
     );
-    println!(
+    outln!(
         "{:<18} {:>9} {:>9} {:>9} {:>9} {:>9} {:>12}",
-        "source", "D [m]", "D_EN [m]", "D_U [m]", "σ_U [m]", "ATE [m]", "ATE al. [m]"
+        "source",
+        "D [m]",
+        "D_EN [m]",
+        "D_U [m]",
+        "σ_U [m]",
+        "ATE [m]",
+        "ATE al. [m]"
     );
     if let Some(g) = &r.ground_truth {
-        println!(
+        outln!(
             "{:<18} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9} {:>12}",
-            "ground truth", g.d_m, g.d_en_m, g.d_u_m, g.sigma_u_m, "", ""
+            "ground truth",
+            g.d_m,
+            g.d_en_m,
+            g.d_u_m,
+            g.sigma_u_m,
+            "",
+            ""
         );
     }
     for s in &r.sources {
@@ -531,7 +593,7 @@ fn print_summary(o: &runner::RunOutcome) {
                 .map(|v| format!("{v:.3}"))
                 .unwrap_or_else(|| "–".into())
         };
-        println!(
+        outln!(
             "{:<18} {:>9} {:>9} {:>9} {:>9} {:>9} {:>12}",
             s.name,
             m("d_m"),
@@ -543,7 +605,7 @@ fn print_summary(o: &runner::RunOutcome) {
         );
     }
     let robot = &r.robot;
-    println!(
+    outln!(
         "{:<18} {}; {} collision(s); max cross-track {:.3} m, heading error {:.1}°, tilt {:.1}°",
         "robot",
         robot.outcome,
@@ -562,9 +624,9 @@ fn print_verdict(
     dir: &Path,
 ) {
     for x in expectations {
-        println!("{x}");
+        outln!("{x}");
     }
-    println!(
+    outln!(
         "{} — report: {}",
         if passed { "PASS" } else { "FAIL" },
         dir.join("report.md").display()
@@ -658,7 +720,7 @@ fn sweep_cmd(a: SweepArgs) -> Result<u8> {
         };
         let r = compare::compare(&base, &new, &o)?;
         let md = compare::markdown(&r);
-        print!("{md}");
+        out!("{md}");
         if let Some(p) = out {
             vinebench::fsio::write_atomic(&p, md.as_bytes())
                 .with_context(|| format!("{}: cannot write", p.display()))?;
@@ -733,7 +795,7 @@ fn sweep_cmd(a: SweepArgs) -> Result<u8> {
 }
 
 fn print_merge(s: &vinebench::sweep::merge::MergeSummary, out: &Path) {
-    println!(
+    outln!(
         "{}: {}{}",
         s.sweep.name,
         s.counts(),
@@ -748,13 +810,13 @@ fn print_merge(s: &vinebench::sweep::merge::MergeSummary, out: &Path) {
     }
     for c in &s.cells {
         for x in &c.expectations {
-            println!("{} / {}: {x}", c.scenario, c.label);
+            outln!("{} / {}: {x}", c.scenario, c.label);
         }
     }
     for x in &s.overall {
-        println!("all jobs: {x}");
+        outln!("all jobs: {x}");
     }
-    println!(
+    outln!(
         "{} — {}",
         if s.passed_all { "PASS" } else { "FAIL" },
         out.join("sweep.md").display()
@@ -763,17 +825,23 @@ fn print_merge(s: &vinebench::sweep::merge::MergeSummary, out: &Path) {
 
 fn check(paths: &[PathBuf], runs: &Path, shard: Option<&str>, junit: Option<&Path>) -> Result<u8> {
     let mut files = collect_scenarios(paths)?;
+    if files.is_empty() {
+        bail!("no scenario files found in {:?}", paths);
+    }
     if let Some(s) = shard {
         let (i, n) = parse_shard(s)?;
+        let all = files.len();
         files = files
             .into_iter()
             .enumerate()
             .filter(|(k, _)| k % n == i - 1)
             .map(|(_, f)| f)
             .collect();
-    }
-    if files.is_empty() {
-        bail!("no scenario files found in {:?}", paths);
+        if files.is_empty() {
+            // A CI matrix wider than the scenario list: this job has nothing to do, which
+            // is a success (the other shards cover every scenario).
+            eprintln!("shard {i}/{n}: nothing to do ({all} scenario(s) over {n} shards)");
+        }
     }
     let mut worst = EXIT_PASS;
     let mut rows = Vec::new();
@@ -809,15 +877,15 @@ fn check(paths: &[PathBuf], runs: &Path, shard: Option<&str>, junit: Option<&Pat
                 ));
             }
             Err(e) => {
-                eprintln!("error: {e:#}");
+                eprintln!("error: {}", error_chain(&e));
                 worst = EXIT_ERROR;
                 rows.push(format!("ERROR {:<40} see above", f.display()));
             }
         }
     }
-    println!("\n{} scenario(s):", files.len());
+    outln!("\n{} scenario(s):", files.len());
     for r in rows {
-        println!("{r}");
+        outln!("{r}");
     }
     if let Some(j) = junit {
         let xml = vinebench::sweep::junit::to_xml("vinebench check", &suites);
@@ -881,7 +949,7 @@ fn check_suite(
             time_s: 0.0,
             verdict: Verdict::Error {
                 message: format!("{e}"),
-                details: format!("{e:#}"),
+                details: error_chain(e),
             },
             system_out: None,
         }],
@@ -931,7 +999,7 @@ fn vocabulary(
     let (vocabulary, s) = voc::train(&set, &cfg)?;
     let bytes = voc::write_atomic(&vocabulary, out)?;
     if !quiet {
-        println!(
+        outln!(
             "{}: {} words (k = {branching}, L = {depth}) from {} keyframes, {} descriptors; {} bytes ({:.2} MB)",
             out.display(),
             s.words,
@@ -940,7 +1008,7 @@ fn vocabulary(
             bytes,
             bytes as f64 / 1e6
         );
-        println!(
+        outln!(
             "{}: {:.1} s simulated ({:.1} m driven, route {}, {} tracking loss(es)) in {:.1} s, \
              trained in {:.1} s; {:.1} s wall",
             sc.scenario.name,
@@ -958,6 +1026,31 @@ fn vocabulary(
         );
     }
     Ok(EXIT_PASS)
+}
+
+/// `--t_max_diff`: a finite number of seconds, at least 0 and at most a day (a stamp
+/// difference beyond that associates unrelated poses).
+fn non_negative_seconds(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .parse()
+        .map_err(|_| format!("expected seconds such as 0.01, found `{s}`"))?;
+    if !(v.is_finite() && (0.0..=86_400.0).contains(&v)) {
+        return Err(format!(
+            "expected finite seconds in [0, 86400], found `{s}`"
+        ));
+    }
+    Ok(v)
+}
+
+/// `--delta`: a finite positive distance in metres.
+fn positive_metres(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .parse()
+        .map_err(|_| format!("expected metres such as 1.0, found `{s}`"))?;
+    if !(v.is_finite() && v > 0.0) {
+        return Err(format!("expected a finite distance > 0 m, found `{s}`"));
+    }
+    Ok(v)
 }
 
 fn score(a: &ScoreArgs) -> Result<u8> {
@@ -984,6 +1077,6 @@ fn score(a: &ScoreArgs) -> Result<u8> {
             "stats": rpe.stats,
         },
     });
-    println!("{out:#}");
+    outln!("{out:#}");
     Ok(EXIT_PASS)
 }

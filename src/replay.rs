@@ -129,17 +129,47 @@ pub struct ReplayConfig {
     pub expect: Vec<String>,
 }
 
+/// The largest topic-mapping file read (bytes); a larger one (or `/dev/zero`) is refused.
+pub const MAX_MAPPING_BYTES: u64 = 1 << 20;
+
 impl ReplayConfig {
-    /// Reads a mapping file; errors name the file, the key and what was expected.
+    /// Reads a mapping file (at most [`MAX_MAPPING_BYTES`]); errors name the file, the key
+    /// and what was expected.
     pub fn load(path: &Path) -> Result<ReplayConfig, ReplayError> {
+        use std::io::Read as _;
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(io_err(path))?;
-        let de = toml::Deserializer::parse(&text).map_err(|e| ReplayError::Input {
+        let mut bytes = Vec::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(MAX_MAPPING_BYTES + 1).read_to_end(&mut bytes))
+            .map_err(io_err(path))?;
+        if bytes.len() as u64 > MAX_MAPPING_BYTES {
+            return Err(ReplayError::Input {
+                file,
+                problem: format!(
+                    "larger than {MAX_MAPPING_BYTES} bytes: expected a topic-mapping TOML file \
+                     (see docs/field-topics.example.toml)"
+                ),
+            });
+        }
+        let text = String::from_utf8(bytes).map_err(|e| ReplayError::Input {
             file: file.clone(),
+            problem: format!(
+                "not UTF-8 text (byte {}): expected a topic-mapping TOML file",
+                e.utf8_error().valid_up_to()
+            ),
+        })?;
+        ReplayConfig::from_str(&text, &file)
+    }
+
+    /// Parses a mapping file's text; errors name `file`, the key and what was expected.
+    #[allow(clippy::should_implement_trait)]
+    pub fn from_str(text: &str, file: &str) -> Result<ReplayConfig, ReplayError> {
+        let de = toml::Deserializer::parse(text).map_err(|e| ReplayError::Input {
+            file: file.to_string(),
             problem: format!("TOML syntax error: {}", e.message().trim()),
         })?;
         serde_path_to_error::deserialize(de).map_err(|e| ReplayError::Input {
-            file,
+            file: file.to_string(),
             problem: format!("`{}`: {}", e.path(), e.inner().message().trim()),
         })
     }
@@ -234,7 +264,10 @@ pub struct ReplayReport {
     pub maps: Vec<crate::runner::mapping::MapReport>,
     /// Expectation outcomes (with ground truth only).
     pub expectations: Vec<ExpectationResult>,
-    /// True when every expectation holds.
+    /// Why the replay gave nothing usable (no estimate source produced a pose), if so:
+    /// `vinebench replay` then exits 2.
+    pub nothing_usable: Option<String>,
+    /// True when every expectation holds and something usable came out.
     pub passed: bool,
 }
 
@@ -641,6 +674,16 @@ fn truth_renderer(sc: &LoadedScenario) -> Result<vinebench_sim::render::shade::R
         .map_err(|e| e.to_string())
 }
 
+/// Whether a recording whose scenario metadata is missing says it was made by vinebench:
+/// its header names vinebench, or its summary indexes a scenario metadata record.
+fn vinebench_made(summary: &reader::McapSummary) -> bool {
+    summary.library.starts_with("vinebench")
+        || summary
+            .metadata_index
+            .iter()
+            .any(|n| n == recording::META_SCENARIO)
+}
+
 fn safe_name(s: &str) -> String {
     let n: String = s
         .chars()
@@ -670,24 +713,45 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         (&t.tracking_odom, Role::TrackingOdom),
         (&t.wheel_odom, Role::WheelOdom),
     ];
-    for (topic, role) in mapped {
-        if let Some(topic) = topic {
-            roles.insert(topic.clone(), role);
+    // The roles the mapping names, each topic at most once; then the default topics of
+    // the static transforms and the ground truth, where the mapping did not use them.
+    let mapping_file = cfg_file.clone().unwrap_or_else(|| file_name.clone());
+    let explicit: Vec<(Role, &String)> = mapped
+        .iter()
+        .filter_map(|(topic, role)| Some((*role, topic.as_ref()?)))
+        .chain(t.cameras.iter().map(|c| (Role::Camera, c)))
+        .chain(t.tf_static.iter().map(|x| (Role::TfStatic, x)))
+        .chain(t.ground_truth.iter().map(|x| (Role::GroundTruth, x)))
+        .collect();
+    for (role, topic) in &explicit {
+        if let Some(&other) = roles.get(topic.as_str())
+            && other != *role
+        {
+            return Err(ReplayError::Input {
+                file: mapping_file,
+                problem: format!(
+                    "`{}` and `{}` both name {topic:?}: each recorded topic feeds one input",
+                    other.key(),
+                    role.key()
+                ),
+            });
         }
-    }
-    for c in &t.cameras {
-        roles.insert(c.clone(), Role::Camera);
+        roles.insert(topic.to_string(), *role);
     }
     let tf_static_topic = t
         .tf_static
         .clone()
         .unwrap_or_else(|| topics::TF_STATIC.to_string());
-    roles.insert(tf_static_topic.clone(), Role::TfStatic);
+    roles
+        .entry(tf_static_topic.clone())
+        .or_insert(Role::TfStatic);
     let truth_topic = t
         .ground_truth
         .clone()
         .unwrap_or_else(|| topics::GROUND_TRUTH_ODOM.to_string());
-    roles.insert(truth_topic.clone(), Role::GroundTruth);
+    roles
+        .entry(truth_topic.clone())
+        .or_insert(Role::GroundTruth);
     let all_cameras = user_cfg.is_none();
 
     let mut got = Collected::default();
@@ -706,6 +770,34 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         collect(Scan::Index, &roles, &mut camera_topics, &mut got, ch, m);
     })?;
     let damage = summary.damage.as_ref().map(|d| d.to_string());
+    // Every topic a mapping file names must be recorded with a type its input accepts (a
+    // channel whose schema was lost with a damaged chunk has no type to check).
+    for (role, topic) in explicit.iter().filter(|_| user_cfg.is_some()) {
+        for ch in summary.channels.values() {
+            let ty = short_type(&ch.schema_name);
+            if &&ch.topic != topic
+                || ch.schema_name.is_empty()
+                || (ch.message_encoding == "cdr" && role.expected_types().contains(&ty.as_str()))
+            {
+                continue;
+            }
+            return Err(ReplayError::Input {
+                file: mapping_file,
+                problem: format!(
+                    "`{key}` = {topic:?}: {file_name} records {topic} as {ty} ({enc}); \
+                     `{key}` accepts {want} (cdr)",
+                    key = role.key(),
+                    enc = ch.message_encoding,
+                    want = role.expected_types().join(" or "),
+                ),
+            });
+        }
+    }
+    // What a missing piece says when the file is damaged: the cause, not only the symptom.
+    let because = damage
+        .as_deref()
+        .map(|d| format!(" — the recording is damaged: {d}"))
+        .unwrap_or_default();
     if let Some(e) = got.wrong_type.first() {
         return Err(ReplayError::Input {
             file: cfg_file.clone().unwrap_or_else(|| file_name.clone()),
@@ -753,7 +845,38 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         meta.and_then(|m| m.get(recording::META_KEY_TOML)),
     ) {
         (None, Some(toml_text)) => {
-            LoadedScenario::from_str(toml_text, &format!("{file_name} (recorded scenario)"))?
+            LoadedScenario::from_str(toml_text, &format!("{file_name} (recorded scenario)"))
+                .map_err(|e| match &summary.damage {
+                    Some(_) => ReplayError::Input {
+                        file: file_name.clone(),
+                        problem: format!("recorded scenario unusable: {e}{because}"),
+                    },
+                    None => ReplayError::Scenario(e),
+                })?
+        }
+        (None, None) if vinebench_made(&summary) => {
+            return Err(ReplayError::Input {
+                file: file_name,
+                problem: format!(
+                    "a vinebench recording whose scenario metadata (`{}`) is damaged or lost, \
+                     so the estimators cannot be rebuilt from it{because}; replay its sensors \
+                     with --config and a topic-mapping file (see \
+                     docs/field-topics.example.toml)",
+                    recording::META_SCENARIO
+                ),
+            });
+        }
+        (None, None) if summary.damage.is_some() => {
+            return Err(ReplayError::Input {
+                file: file_name,
+                problem: format!(
+                    "no `{}` metadata{because}: if vinebench \
+                     made it, its scenario is among what was lost; otherwise pass --config \
+                     with a topic-mapping file (see docs/field-topics.example.toml); its \
+                     topics: {topic_list}",
+                    recording::META_SCENARIO
+                ),
+            });
         }
         (None, None) => {
             return Err(ReplayError::Input {
@@ -816,7 +939,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             file: file_name,
             problem: format!(
                 "no static transforms on {tf_static_topic:?}: the estimators need \
-                 body_from_<sensor frame> for every sensor (its topics: {topic_list})"
+                 body_from_<sensor frame> for every sensor (its topics: {topic_list}){because}"
             ),
         });
     }
@@ -835,11 +958,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         return Err(ReplayError::Input {
             file: file_name,
             problem: format!(
-                "no usable sensor message{} (mapped: {}; its topics: {topic_list})",
-                damage
-                    .as_deref()
-                    .map(|d| format!(" ({d})"))
-                    .unwrap_or_default(),
+                "no usable sensor message (mapped: {}; its topics: {topic_list}){because}",
                 roles.keys().cloned().collect::<Vec<_>>().join(", ")
             ),
         });
@@ -964,7 +1083,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         return Err(ReplayError::Input {
             file: file_name,
             problem: format!(
-                "no sensor message decodes ({})",
+                "no sensor message decodes ({}){because}",
                 got.decode_errors
                     .iter()
                     .map(|(t, (n, e))| format!("{t}: {n} × {e}"))
@@ -1121,7 +1240,34 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     } else {
         Vec::new()
     };
-    let passed = expectations.iter().all(|x| x.holds);
+    let nothing_usable = sources.iter().all(|s| s.poses == 0).then(|| {
+        let per_source: Vec<String> = sources
+            .iter()
+            .map(|s| {
+                let used: u64 = s.used.values().sum();
+                let rejected: u64 = s.rejected.values().sum();
+                format!(
+                    "{} 0 poses ({used} messages used, {rejected} rejected)",
+                    s.name
+                )
+            })
+            .collect();
+        format!(
+            "{file_name}: no estimate source produced a pose ({}; {} messages replayed){}: \
+             nothing usable",
+            if per_source.is_empty() {
+                "no estimator configured".to_string()
+            } else {
+                per_source.join(", ")
+            },
+            got.replayed.values().sum::<u64>(),
+            damage
+                .as_deref()
+                .map(|d| format!("; the recording is damaged: {d}"))
+                .unwrap_or_default()
+        )
+    });
+    let passed = expectations.iter().all(|x| x.holds) && nothing_usable.is_none();
     let report = ReplayReport {
         vinebench_version: env!("CARGO_PKG_VERSION"),
         recording: file_name,
@@ -1141,6 +1287,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         sources,
         maps,
         expectations,
+        nothing_usable,
         passed,
     };
     write_report(&dir, &report, &truth, &out.estimators)?;
@@ -1165,6 +1312,9 @@ fn write_report(
     }
     if let Some(d) = &report.damage {
         let _ = writeln!(md, "\n**Damaged recording**: {d}.");
+    }
+    if let Some(why) = &report.nothing_usable {
+        let _ = writeln!(md, "\n**Nothing usable**: {why}.");
     }
     let _ = writeln!(md, "\n## Messages\n\n| topic | replayed |\n|---|---:|");
     for (t, n) in &report.replayed {

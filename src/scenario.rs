@@ -30,6 +30,13 @@ use vinebench_sim::params::{
     SensorsParams, WorldParams,
 };
 
+/// The longest run a scenario may ask for (`max_duration_s`): 30 days.
+pub const MAX_DURATION_S: f64 = 30.0 * 86_400.0;
+
+/// The latest `start_time_utc`: early enough that any run ends before i64 nanoseconds do
+/// (2262-04-11).
+pub const LATEST_START_UTC: &str = "2200-01-01T00:00:00Z";
+
 /// A complete scenario, every field resolved (scenario file over defaults).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -180,10 +187,11 @@ impl LoadedScenario {
     /// Reads a scenario file with some keys set from outside it (see [`Override`]).
     pub fn load_with(path: &Path, overrides: &[Override]) -> Result<LoadedScenario, ScenarioError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io {
-            file: file.clone(),
-            source,
-        })?;
+        let text = crate::fsio::read_text_bounded(path, crate::fsio::MAX_TEXT_INPUT_BYTES)
+            .map_err(|source| ScenarioError::Io {
+                file: file.clone(),
+                source,
+            })?;
         let mut s = LoadedScenario::from_str_with(&text, &file, overrides)?;
         s.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         Ok(s)
@@ -315,21 +323,40 @@ impl LoadedScenario {
             self.field_error(
                 "start_time_utc",
                 format!(
-                    "expected a UTC time like \"2021-09-15T09:00:00Z\", found {:?}",
+                    "expected a UTC time like \"2021-09-15T09:00:00Z\" from 1970-01-01T00:00:00Z \
+                     to {LATEST_START_UTC}, found {:?}",
                     s.start_time_utc
                 ),
             )
         })?;
+        // Stamps are i64 nanoseconds since 1970 (they end in 2262) and MCAP log times are
+        // unsigned: a run must start and end inside that range, with room for the longest
+        // run (MAX_DURATION_S) and its safety margin.
+        let latest = vinebench_msgs::time::parse_utc(LATEST_START_UTC).unwrap_or(Nanos(0));
+        if self.start < Nanos(0) || self.start > latest {
+            return Err(self.field_error(
+                "start_time_utc",
+                format!(
+                    "expected a UTC time from 1970-01-01T00:00:00Z to {LATEST_START_UTC} \
+                     (stamps are nanoseconds since 1970 in 64 bits, which end in 2262), \
+                     found {:?}",
+                    s.start_time_utc
+                ),
+            ));
+        }
         if !s.origin.is_valid() {
             return Err(self.field_error(
                 "origin",
                 "expected finite lat_deg in [-90, 90], lon_deg and alt_m",
             ));
         }
-        if !(s.max_duration_s.is_finite() && s.max_duration_s >= 0.0) {
+        if !(s.max_duration_s.is_finite() && (0.0..=MAX_DURATION_S).contains(&s.max_duration_s)) {
             return Err(self.field_error(
                 "max_duration_s",
-                format!("expected a number >= 0, found {}", s.max_duration_s),
+                format!(
+                    "expected seconds from 0 (no limit) to {MAX_DURATION_S} (30 days), found {}",
+                    s.max_duration_s
+                ),
             ));
         }
         if s.name.is_empty()

@@ -39,7 +39,9 @@ fn chi2_interval(dof: usize) -> (f64, f64) {
 fn nees_series(truth: &Trajectory, eif: &Trajectory) -> Vec<(i64, f64, f64)> {
     let mut out = Vec::new();
     for s in &eif.samples {
-        let Some(cov) = s.covariance else { continue };
+        let Some(cov) = s.covariance.as_deref().copied() else {
+            continue;
+        };
         let Some(t) = truth.interpolate(s.stamp) else {
             continue;
         };

@@ -135,7 +135,12 @@ pub fn parse_utc(s: &str) -> Option<Nanos> {
     let y: i64 = d.next()?.parse().ok()?;
     let m: i64 = d.next()?.parse().ok()?;
     let day: i64 = d.next()?.parse().ok()?;
-    if d.next().is_some() || !(1..=12).contains(&m) || !(1..=31).contains(&day) {
+    // RFC 3339 years have four digits; beyond them the nanoseconds would overflow anyway.
+    if d.next().is_some()
+        || !(0..=9999).contains(&y)
+        || !(1..=12).contains(&m)
+        || !(1..=31).contains(&day)
+    {
         return None;
     }
     let mut t = time.split(':');
@@ -153,13 +158,27 @@ pub fn parse_utc(s: &str) -> Option<Nanos> {
     let doy = (153 * mp + 2) / 5 + day - 1;
     let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
     let days = era * 146_097 + doe - 719_468;
-    Some(Nanos::from_secs(days * 86_400 + hh * 3600 + mm * 60) + ss)
+    // Nanoseconds in an i64 end in 2262: later times are not representable.
+    let secs = days * 86_400 + hh * 3600 + mm * 60;
+    secs.checked_mul(1_000_000_000)
+        .and_then(|n| n.checked_add(ss.0))
+        .map(Nanos)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn utc_beyond_i64_nanoseconds_is_refused() {
+        // i64 nanoseconds end at 2262-04-11T23:47:16.854775807Z.
+        assert!(parse_utc("2262-04-11T23:47:16Z").is_some());
+        assert_eq!(parse_utc("2262-04-11T23:47:17Z"), None);
+        assert_eq!(parse_utc("9999-12-31T23:59:59Z"), None);
+        assert_eq!(parse_utc("99999999999999-01-01T00:00:00Z"), None);
+        assert!(parse_utc("1969-12-31T23:59:59Z").is_some_and(|t| t.0 < 0));
+    }
 
     #[test]
     fn utc_known_epochs() {

@@ -15,6 +15,15 @@
 //! A `waypoints` route with `there_and_back` continues past its last point back to its
 //! first along the same points in reverse order: the direction of travel reverses at a
 //! *cusp* ([`Route::cusps_m`]), where the robot stops and drives back without turning.
+//!
+//! # Size limits
+//! A route is sampled densely up front, so its memory grows with its length (32 bytes per
+//! point, 20 points per metre). Routes longer than [`MAX_ROUTE_LENGTH_M`] (100 km, more
+//! than a day of driving at 1 m/s) or with more than [`MAX_ROUTE_SAMPLES`] points are
+//! refused with a [`ParamError`] naming the key that makes the route long
+//! (`route.waypoints.points`, `route.row_loop.laps`, `route.serpentine.last_row`), before
+//! anything is sampled: the cost of building a route is linear in its pieces and bounded
+//! by these limits whatever the input.
 
 use crate::params::{
     HeadlandsParams, LoopDirection, ParamError, RouteKind, RouteParams, WaypointsParams,
@@ -31,6 +40,13 @@ pub const DEFAULT_FILLET_RADIUS_M: f64 = 1.0;
 /// Smallest fillet radius a `waypoints` corner may be shrunk to (where its segments are
 /// short), m: sharper corners are rejected so the curvature stays bounded.
 pub const MIN_FILLET_RADIUS_M: f64 = 0.1;
+/// Longest route [`build_route`] accepts, m (measured along the route in the world; a
+/// `there_and_back` route counts both ways). Longer routes are refused with a
+/// [`ParamError`] instead of being sampled.
+pub const MAX_ROUTE_LENGTH_M: f64 = 100_000.0;
+/// Most points of a route's dense polyline (about [`MAX_ROUTE_LENGTH_M`] /
+/// [`ROUTE_SAMPLE_M`], plus one per piece): at 32 bytes a point, at most 80 MB per copy.
+pub const MAX_ROUTE_SAMPLES: usize = 2_500_000;
 /// First and last point closer than this make a closed route, m.
 const CLOSED_TOLERANCE_M: f64 = 1e-9;
 /// Pieces shorter than this are dropped, m.
@@ -255,14 +271,27 @@ pub fn build_route(
             turn.check_lanes(layout, &[first, second])?;
             let (oa, ob) = (layout.lane_offset_m(first), layout.lane_offset_m(second));
             let (top, bottom) = (layout.length_m + turn.overshoot_m, -turn.overshoot_m);
-            let mut pieces = Vec::new();
-            for _ in 0..p.laps {
-                pieces.push(Piece::line(Vector2::new(0.0, oa), Vector2::new(top, oa)));
-                turn.u_turn(&mut pieces, top, 1.0, oa, ob);
-                pieces.push(Piece::line(Vector2::new(top, ob), Vector2::new(bottom, ob)));
-                turn.u_turn(&mut pieces, bottom, -1.0, ob, oa);
-                pieces.push(Piece::line(Vector2::new(bottom, oa), Vector2::new(0.0, oa)));
-            }
+            let mut lap = Vec::new();
+            lap.push(Piece::line(Vector2::new(0.0, oa), Vector2::new(top, oa)));
+            turn.u_turn(&mut lap, top, 1.0, oa, ob);
+            lap.push(Piece::line(Vector2::new(top, ob), Vector2::new(bottom, ob)));
+            turn.u_turn(&mut lap, bottom, -1.0, ob, oa);
+            lap.push(Piece::line(Vector2::new(bottom, oa), Vector2::new(0.0, oa)));
+            // Checked before the laps are laid out: their number is input.
+            let one = SampledSize::of(&lap, layout);
+            let laps = f64::from(p.laps);
+            check_size(
+                "route.row_loop.laps",
+                SampledSize {
+                    // One end point for all laps.
+                    points: (one.points - 1)
+                        .saturating_mul(p.laps as usize)
+                        .saturating_add(1),
+                    length_m: one.length_m * laps,
+                },
+                format!("{} laps of {:.1} m", p.laps, one.length_m),
+            )?;
+            let pieces = lap.repeat(p.laps as usize);
             Ok(sample_pieces(&pieces, layout))
         }
         RouteKind::Serpentine => {
@@ -282,6 +311,20 @@ pub fn build_route(
                     p.first_row,
                 ));
             }
+            // At least one row length per lane: refuse a huge serpentine before laying out
+            // its lanes.
+            let lane_count = f64::from(p.last_row - p.first_row) + 2.0;
+            check_size(
+                "route.serpentine.last_row",
+                SampledSize {
+                    points: 0,
+                    length_m: lane_count * layout.length_m,
+                },
+                format!(
+                    "{lane_count} lanes of world.rows.length_m = {} m",
+                    layout.length_m
+                ),
+            )?;
             let lanes: Vec<u32> = (p.first_row..=p.last_row + 1).collect();
             turn.check_lanes(layout, &lanes)?;
             let (top, bottom) = (layout.length_m + turn.overshoot_m, -turn.overshoot_m);
@@ -307,6 +350,11 @@ pub fn build_route(
                     turn.u_turn(&mut pieces, to, if up { 1.0 } else { -1.0 }, o, next);
                 }
             }
+            check_size(
+                "route.serpentine.last_row",
+                SampledSize::of(&pieces, layout),
+                format!("rows {} to {}", p.first_row, p.last_row),
+            )?;
             Ok(sample_pieces(&pieces, layout))
         }
         RouteKind::Waypoints => {
@@ -334,6 +382,24 @@ pub fn build_route(
                 yaw_rad: 0.0,
                 curvature_per_m: 0.0,
             };
+            let size = SampledSize::of(&pieces, &identity);
+            let legs = if w.there_and_back { 2 } else { 1 };
+            check_size(
+                "route.waypoints.points",
+                SampledSize {
+                    points: size.points.saturating_mul(legs),
+                    length_m: size.length_m * legs as f64,
+                },
+                format!(
+                    "{} points{}",
+                    w.points.len(),
+                    if w.there_and_back {
+                        ", there and back"
+                    } else {
+                        ""
+                    }
+                ),
+            )?;
             let forward = sample_pieces(&pieces, &identity);
             Ok(if w.there_and_back {
                 there_and_back(forward)
@@ -675,30 +741,102 @@ fn speed_and_curvature(e: &PieceEval, k: f64) -> (f64, f64) {
     (speed, cross / speed.powi(3))
 }
 
+/// How big sampling some pieces makes a route: what [`check_size`] judges before
+/// [`sample_pieces`] allocates anything.
+#[derive(Copy, Clone, Debug)]
+struct SampledSize {
+    /// Points of the dense polyline (saturating).
+    points: usize,
+    /// The route's length in the world, m (an upper bound on curved rows; infinite or
+    /// NaN for an unusable route).
+    length_m: f64,
+}
+
+impl SampledSize {
+    /// The size [`sample_pieces`] gives `pieces` through `layout` (same per-piece point
+    /// counts, plus the end point); linear in the pieces, allocates nothing.
+    fn of(pieces: &[Piece], layout: &RowLayout) -> SampledSize {
+        let mut size = SampledSize {
+            points: 1,
+            length_m: 0.0,
+        };
+        for piece in pieces {
+            if let Some((n, world_m)) = piece_samples(piece, layout.curvature_per_m) {
+                size.points = size.points.saturating_add(n);
+                size.length_m += world_m;
+            } else if piece.length().is_nan() {
+                // A NaN length: unusable whatever the limits.
+                size.length_m = f64::NAN;
+            }
+        }
+        size
+    }
+}
+
+/// Refuses a route beyond [`MAX_ROUTE_LENGTH_M`] or [`MAX_ROUTE_SAMPLES`], naming `path`
+/// (the key that makes it long) and what it holds (`found`).
+fn check_size(path: &str, size: SampledSize, found: String) -> Result<(), ParamError> {
+    // Written so that a NaN length fails.
+    if size.length_m <= MAX_ROUTE_LENGTH_M && size.points <= MAX_ROUTE_SAMPLES {
+        return Ok(());
+    }
+    Err(ParamError::new(
+        path,
+        format!(
+            "a route of at most {MAX_ROUTE_LENGTH_M} m (MAX_ROUTE_LENGTH_M) and \
+             {MAX_ROUTE_SAMPLES} points {ROUTE_SAMPLE_M} m apart (MAX_ROUTE_SAMPLES): routes \
+             are sampled densely before the run"
+        ),
+        format!(
+            "{found}: a route of {:.4e} m ({} points)",
+            size.length_m,
+            if size.points == usize::MAX {
+                "too many".to_string()
+            } else {
+                size.points.to_string()
+            }
+        ),
+    ))
+}
+
+/// Points [`sample_pieces`] takes on `piece` and an upper bound of its world length, m
+/// (`None` for a piece it skips: shorter than [`MIN_PIECE_M`], or of NaN length).
+fn piece_samples(piece: &Piece, k: f64) -> Option<(usize, f64)> {
+    let len = piece.length();
+    if len.is_nan() || len <= MIN_PIECE_M {
+        return None;
+    }
+    // The world length is at most len · max(a) along the piece.
+    let (e0, e1) = (piece.eval(0.0), piece.eval(len));
+    let a_max = (1.0 - k * e0.pos.y)
+        .abs()
+        .max((1.0 - k * e1.pos.y).abs())
+        .max(1.0);
+    // `as` saturates: an infinite length gives usize::MAX (refused by check_size).
+    let n = ((len * a_max / ROUTE_SAMPLE_M).ceil() as usize).max(1);
+    Some((n, len * a_max))
+}
+
 /// Samples the pieces about [`ROUTE_SAMPLE_M`] apart (in the world), mapping plane
-/// coordinates through `layout`.
+/// coordinates through `layout`. Callers check the size first ([`check_size`]).
 fn sample_pieces(pieces: &[Piece], layout: &RowLayout) -> Route {
     let k = layout.curvature_per_m;
     let map = |p: &Vector2<f64>| layout.point(p.y, p.x).0;
+    let points = SampledSize::of(pieces, layout)
+        .points
+        .min(MAX_ROUTE_SAMPLES);
     let mut route = Route {
-        points: Vec::new(),
-        arc_length_m: Vec::new(),
-        curvature_per_m: Vec::new(),
+        points: Vec::with_capacity(points),
+        arc_length_m: Vec::with_capacity(points),
+        curvature_per_m: Vec::with_capacity(points),
         cusps_m: Vec::new(),
     };
     let mut arc = 0.0;
     for piece in pieces {
-        let len = piece.length();
-        if len <= MIN_PIECE_M {
+        let Some((n, _)) = piece_samples(piece, k) else {
             continue;
-        }
-        // The world length is at most len · max(a) along the piece.
-        let (e0, e1) = (piece.eval(0.0), piece.eval(len));
-        let a_max = (1.0 - k * e0.pos.y)
-            .abs()
-            .max((1.0 - k * e1.pos.y).abs())
-            .max(1.0);
-        let n = ((len * a_max / ROUTE_SAMPLE_M).ceil() as usize).max(1);
+        };
+        let len = piece.length();
         let h = len / n as f64;
         for i in 0..n {
             let u = len * i as f64 / n as f64;

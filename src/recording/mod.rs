@@ -11,7 +11,9 @@
 //! - [`cdr`]: the CDR primitives; [`ros`]: encoders and decoders of each message type;
 //! - [`writer`]: [`McapSink`] (in the caller's thread) and [`Recorder`] (background
 //!   thread, finalizes on drop);
-//! - [`reader`]: a linear scan that recovers what a truncated or damaged file holds.
+//! - [`reader`]: a linear scan that recovers what a truncated or damaged file holds:
+//!   every size a file states is bounded before it is allocated, every chunk's CRC is
+//!   checked before its messages are used, and what was lost is reported.
 //!
 //! ```
 //! use vinebench::recording::{McapSink, SinkOptions, reader};
@@ -47,7 +49,7 @@ pub mod ros;
 pub mod schema;
 pub mod writer;
 
-pub use reader::{ChannelInfo, Damage, McapSummary, RawMessage};
+pub use reader::{ChannelInfo, Damage, LostChunk, McapSummary, RawMessage};
 pub use writer::{McapSink, RecordItem, Recorder, SinkOptions};
 
 use thiserror::Error;
@@ -126,7 +128,9 @@ impl RecordingParams {
             "recording.chunk_size_mb",
             self.chunk_size_mb,
             0.01,
-            1024.0,
+            // A chunk is this plus one message; the reader refuses chunks over
+            // `reader::MAX_CHUNK_BYTES` (1 GiB).
+            512.0,
         )?;
         for (i, t) in self.exclude_topics.iter().enumerate() {
             if !t.starts_with('/') || t.trim_end_matches('*').contains('*') {

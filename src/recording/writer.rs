@@ -14,6 +14,8 @@ use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::{BufWriter, Seek, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::thread::JoinHandle;
 use vinebench_msgs::frames::names;
@@ -393,7 +395,14 @@ impl<W: Write + Seek> McapSink<W> {
             .finish()
             .map_err(RecordingError::mcap("writing the summary"))?;
         self.stats.channels = self.channels.values().filter(|c| c.id.is_some()).count();
-        Ok(self.stats.clone())
+        // The buffered tail reaches the file here, where its error is seen (a drop would
+        // swallow it and leave a file without its footer, reported as finished).
+        let McapSink { writer, stats, .. } = self;
+        writer
+            .into_inner()
+            .flush()
+            .map_err(|e| RecordingError::mcap("writing the summary")(e.into()))?;
+        Ok(stats)
     }
 }
 
@@ -404,7 +413,11 @@ pub fn body_odometry(s: &vinebench_msgs::PoseSample) -> OdometryMsg {
         frame_id: FrameId::new(names::WORLD),
         child_frame_id: FrameId::new(names::BASE_LINK),
         pose: s.world_from_body,
-        pose_covariance: s.covariance.unwrap_or_else(Matrix6::zeros),
+        pose_covariance: s
+            .covariance
+            .as_deref()
+            .copied()
+            .unwrap_or_else(Matrix6::zeros),
         linear_velocity: Vector3::zeros(),
         angular_velocity: Vector3::zeros(),
         twist_covariance: Matrix6::zeros(),
@@ -442,6 +455,8 @@ pub enum RecordItem {
 /// An MCAP file written on a background thread. Dropping it (also while unwinding)
 /// finalizes the file; [`Recorder::finish`] does so and reports errors.
 pub struct Recorder {
+    /// Set by the writer thread at its first failed write.
+    failed: Arc<AtomicBool>,
     tx: Option<SyncSender<Vec<RecordItem>>>,
     batch: Vec<RecordItem>,
     thread: Option<JoinHandle<Result<RecordingStats, RecordingError>>>,
@@ -457,14 +472,17 @@ impl Recorder {
         })?;
         let sink = McapSink::new(BufWriter::with_capacity(1 << 20, file), opts)?;
         let (tx, rx) = sync_channel(QUEUE_DEPTH);
+        let failed = Arc::new(AtomicBool::new(false));
+        let flag = failed.clone();
         let thread = std::thread::Builder::new()
             .name("recording".into())
-            .spawn(move || write_loop(sink, rx))
+            .spawn(move || write_loop(sink, rx, &flag))
             .map_err(|source| RecordingError::Io {
                 path: path.display().to_string(),
                 source,
             })?;
         Ok(Recorder {
+            failed,
             tx: Some(tx),
             batch: Vec::with_capacity(BATCH_ITEMS),
             thread: Some(thread),
@@ -475,6 +493,12 @@ impl Recorder {
     /// The file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// True once a write has failed (a full disk, an I/O error): the run should stop and
+    /// [`Recorder::finish`] says why, instead of simulating on for nothing.
+    pub fn failed(&self) -> bool {
+        self.failed.load(Ordering::Relaxed)
     }
 
     /// Queues an item for the writer, handing over [`BATCH_ITEMS`] at a time (waits
@@ -526,6 +550,7 @@ impl Drop for Recorder {
 fn write_loop<W: Write + Seek>(
     mut sink: McapSink<W>,
     rx: Receiver<Vec<RecordItem>>,
+    failed: &AtomicBool,
 ) -> Result<RecordingStats, RecordingError> {
     let mut first_error = None;
     for item in rx.into_iter().flatten() {
@@ -549,12 +574,15 @@ fn write_loop<W: Write + Seek>(
             }
         };
         if let Err(e) = r {
+            failed.store(true, Ordering::Relaxed);
             first_error = Some(e);
         }
     }
-    let stats = sink.finish()?;
-    match first_error {
-        Some(e) => Err(e),
-        None => Ok(stats),
+    // The first error is the cause ("No space left on device"); finishing after it can
+    // only add "attempted another write after a write method failed".
+    let finished = sink.finish();
+    match (first_error, finished) {
+        (Some(e), _) => Err(e),
+        (None, r) => r,
     }
 }

@@ -295,10 +295,40 @@ pub fn score(out: &MappingOutput) -> Vec<MapReport> {
 }
 
 /// Writes every map into `run_dir` (see [`map_folder`]): clouds, and for the main map
-/// the mesh, Gazebo model and MJCF.
+/// the mesh, Gazebo model and MJCF. Whole or not at all: the maps are written into a
+/// temporary folder beside `map/`, which is renamed into place once every file is
+/// complete (a full disk leaves no half-written map).
 pub fn export(run_dir: &Path, out: &MappingOutput) -> Result<(), MapperError> {
-    for (i, m) in out.maps.iter().enumerate() {
-        m.map.export(&run_dir.join(map_folder(i, &m.source)))?;
+    if out.maps.is_empty() {
+        return Ok(());
     }
-    Ok(())
+    let tmp = run_dir.join(format!(".{MAP_DIR}.tmp{}", std::process::id()));
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| MapperError::Io { path, source }
+    };
+    let _ = std::fs::remove_dir_all(&tmp);
+    let written = (|| {
+        for (i, m) in out.maps.iter().enumerate() {
+            let rel = map_folder(i, &m.source);
+            let sub = rel
+                .strip_prefix(MAP_DIR)
+                .unwrap_or(&rel)
+                .trim_start_matches('/');
+            m.map.export(&if sub.is_empty() {
+                tmp.clone()
+            } else {
+                tmp.join(sub)
+            })?;
+        }
+        let dest = run_dir.join(MAP_DIR);
+        if dest.exists() {
+            std::fs::remove_dir_all(&dest).map_err(io(&dest))?;
+        }
+        std::fs::rename(&tmp, &dest).map_err(io(&dest))
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    written
 }

@@ -6,12 +6,14 @@
 //! [`run`] adds the outputs: the run folder with TUM files, report, plots and
 //! `recording.mcap` (every message, ground truth and estimate; see [`crate::recording`]).
 
+mod folder;
 pub mod images;
 pub mod mapping;
 mod outcome;
 pub mod report;
 mod simulate;
 
+pub use folder::{LOCK_FILE, RunFolder, is_run_output};
 pub(crate) use outcome::io_err;
 pub use outcome::{
     ComparisonReport, MotionComparison, RobotOutcome, RobotReport, RunError, Simulation, TimeLimit,
@@ -48,6 +50,9 @@ pub struct RunOptions {
     /// Set (by a Ctrl-C handler) to stop the run cleanly: the simulation ends at its next
     /// step and the recording is finalized.
     pub stop: Option<Arc<AtomicBool>>,
+    /// An `out_dir` that already holds files is cleared of a run's outputs (else refused);
+    /// see [`RunFolder`].
+    pub replace: bool,
 }
 
 impl Default for RunOptions {
@@ -57,6 +62,7 @@ impl Default for RunOptions {
             runs_root: PathBuf::from("runs"),
             progress: true,
             stop: None,
+            replace: false,
         }
     }
 }
@@ -100,18 +106,20 @@ pub fn progress_bar(sc: &LoadedScenario, enabled: bool) -> Option<ProgressBar> {
 pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunError> {
     // Every parameter is checked before anything is written.
     let mut built = setup(sc)?;
-    let dir = match &opts.out_dir {
-        Some(d) => d.clone(),
-        None => opts
-            .runs_root
-            .join(format!("{}-{}", sc.scenario.name, utc_stamp())),
-    };
-    std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+    // The folder is this run's until it returns (see `RunFolder`).
+    let folder = RunFolder::claim(
+        opts.out_dir.as_deref(),
+        &opts.runs_root,
+        &sc.scenario.name,
+        &utc_stamp(),
+        opts.replace,
+    )?;
+    let dir = folder.path().to_path_buf();
     if sc.scenario.render.debug_png_every > 0 && built.renderer.is_some() {
         built.png_dir = Some(dir.join("images"));
     }
     let resolved = dir.join("scenario.resolved.toml");
-    std::fs::write(&resolved, sc.resolved_toml()).map_err(io_err(&resolved))?;
+    write_file(&resolved, sc.resolved_toml().as_bytes())?;
     built.recorder = Some(Recorder::create(
         &dir.join(RECORDING_FILE),
         &SinkOptions::from_params(&sc.scenario.recording),
@@ -143,7 +151,7 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
         let named: Vec<(&str, &scoring::loops::LoopScore)> =
             scores.loops.iter().map(|(n, l)| (n.as_str(), l)).collect();
         let p = dir.join("loops.csv");
-        std::fs::write(&p, scoring::loops::loops_csv(&named, t0)).map_err(io_err(&p))?;
+        write_file(&p, scoring::loops::loops_csv(&named, t0).as_bytes())?;
     }
     let expectations = evaluate(sc, &scores);
     let report = Report::new(sc, &sim, scores, expectations);
@@ -173,12 +181,18 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
         }
     }
     let tp = dir.join("timing.json");
-    std::fs::write(&tp, format!("{timing:#}\n")).map_err(io_err(&tp))?;
+    write_file(&tp, format!("{timing:#}\n").as_bytes())?;
+    drop(folder);
     Ok(RunOutcome {
         dir,
         report,
         wall_s,
     })
+}
+
+/// Writes a run-folder file whole or not at all ([`crate::fsio::write_atomic`]).
+pub(crate) fn write_file(path: &std::path::Path, bytes: &[u8]) -> Result<(), RunError> {
+    crate::fsio::write_atomic(path, bytes).map_err(io_err(path))
 }
 
 /// `YYYYMMDD-HHMMSS` of the current UTC time (names default run folders).

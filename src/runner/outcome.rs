@@ -40,6 +40,29 @@ pub enum RunError {
         /// Simulated time when the run stopped, s.
         simulated_s: f64,
     },
+    /// Another run (alive) writes the folder.
+    #[error(
+        "{path}: the folder is in use by another run ({owner}); wait for it or choose another --out"
+    )]
+    FolderInUse {
+        /// The folder.
+        path: String,
+        /// Who holds it (`pid N on HOST`).
+        owner: String,
+    },
+    /// The folder holds files and the caller did not ask to replace them.
+    #[error(
+        "{path}: the folder is not empty ({entries} entries: {first}); choose another --out, \
+         or pass --replace to clear the files of a previous run there (others are kept)"
+    )]
+    FolderNotEmpty {
+        /// The folder.
+        path: String,
+        /// How many entries it holds.
+        entries: usize,
+        /// The first few names.
+        first: String,
+    },
     /// Writing the run folder failed.
     #[error("{path}: {source}")]
     Io {
@@ -166,6 +189,53 @@ pub enum RobotOutcome {
         /// Arc length reached along the route, m.
         progress_m: f64,
     },
+    /// The physics state became non-finite or physically impossible
+    /// ([`MotionOutcome::PhysicsDiverged`]): the run ended there and fails.
+    PhysicsDiverged {
+        /// Time of the first bad physics step, s after the start.
+        at_s: f64,
+        /// What was wrong, with the value and the bound.
+        reason: String,
+        /// Arc length reached along the route, m.
+        progress_m: f64,
+    },
+    /// The robot tipped over ([`MotionOutcome::TippedOver`]): the run ended and fails.
+    TippedOver {
+        /// When the run ended, s after the start.
+        at_s: f64,
+        /// When the tilt first went beyond the bound, s after the start.
+        tilted_at_s: f64,
+        /// The tilt when the run ended, degrees.
+        tilt_deg: f64,
+        /// Arc length reached along the route, m.
+        progress_m: f64,
+    },
+}
+
+impl RobotOutcome {
+    /// Why the run fails whatever its expectations say (the physics diverged or the robot
+    /// tipped over), or `None` for an outcome the expectations judge.
+    pub fn failure(&self) -> Option<String> {
+        match self {
+            RobotOutcome::PhysicsDiverged { .. } | RobotOutcome::TippedOver { .. } => {
+                Some(self.to_string())
+            }
+            _ => None,
+        }
+    }
+
+    /// The outcome's kind as in `report.json` (`completed`, `stuck`, `physics_diverged`,
+    /// `tipped_over`, ...).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            RobotOutcome::Completed { .. } => "completed",
+            RobotOutcome::Stuck { .. } => "stuck",
+            RobotOutcome::MaxDuration { .. } => "max_duration",
+            RobotOutcome::SafetyLimit { .. } => "safety_limit",
+            RobotOutcome::PhysicsDiverged { .. } => "physics_diverged",
+            RobotOutcome::TippedOver { .. } => "tipped_over",
+        }
+    }
 }
 
 impl fmt::Display for RobotOutcome {
@@ -182,6 +252,26 @@ impl fmt::Display for RobotOutcome {
             RobotOutcome::SafetyLimit { at_s, progress_m } => write!(
                 f,
                 "stopped by the safety limit at {at_s:.1} s after {progress_m:.1} m"
+            ),
+            RobotOutcome::PhysicsDiverged {
+                at_s,
+                reason,
+                progress_m,
+            } => write!(
+                f,
+                "physics_diverged at {at_s:.3} s after {progress_m:.1} m: {reason}"
+            ),
+            RobotOutcome::TippedOver {
+                at_s,
+                tilted_at_s,
+                tilt_deg,
+                progress_m,
+            } => write!(
+                f,
+                "tipped_over at {at_s:.1} s after {progress_m:.1} m: tilted {tilt_deg:.0}° from \
+                 the vertical since {tilted_at_s:.1} s (bound {:.0}° for {:.1} s)",
+                vinebench_sim::motion::dynamic::TIP_OVER_TILT_DEG,
+                vinebench_sim::motion::dynamic::TIP_OVER_HOLD_S
             ),
         }
     }
@@ -247,6 +337,21 @@ impl RobotReport {
             MotionOutcome::Stuck { at_s, progress_m } => RobotOutcome::Stuck {
                 at_s: *at_s,
                 progress_m: *progress_m,
+            },
+            MotionOutcome::PhysicsDiverged { at_s, reason } => RobotOutcome::PhysicsDiverged {
+                at_s: *at_s,
+                reason: reason.clone(),
+                progress_m,
+            },
+            MotionOutcome::TippedOver {
+                at_s,
+                tilted_at_s,
+                tilt_deg,
+            } => RobotOutcome::TippedOver {
+                at_s: *at_s,
+                tilted_at_s: *tilted_at_s,
+                tilt_deg: *tilt_deg,
+                progress_m,
             },
             MotionOutcome::Running => match sim.stopped_by {
                 Some(TimeLimit::MaxDuration) => RobotOutcome::MaxDuration { at_s, progress_m },
@@ -374,6 +479,38 @@ mod tests {
         for (m, _) in ROBOT_METRICS {
             assert!(!METRICS.iter().any(|(e, _)| e == m), "{m}");
         }
+    }
+
+    #[test]
+    fn physics_failures_are_named_outcomes_that_fail_the_run() {
+        let diverged = RobotOutcome::PhysicsDiverged {
+            at_s: 3.25,
+            reason: "body speed 1e40 m/s above MAX_BODY_SPEED_MPS = 50 m/s".into(),
+            progress_m: 2.0,
+        };
+        let tipped = RobotOutcome::TippedOver {
+            at_s: 2.6,
+            tilted_at_s: 1.6,
+            tilt_deg: 134.0,
+            progress_m: 0.0,
+        };
+        for (o, kind) in [(&diverged, "physics_diverged"), (&tipped, "tipped_over")] {
+            assert_eq!(o.kind(), kind);
+            let why = o.failure().expect("a failure");
+            assert!(why.starts_with(kind), "{why}");
+            let json = serde_json::to_value(o).unwrap();
+            assert_eq!(json["kind"], kind);
+        }
+        assert!(diverged.to_string().contains("3.250 s") && diverged.to_string().contains("1e40"));
+        assert!(RobotOutcome::Completed { at_s: 1.0 }.failure().is_none());
+        assert!(
+            RobotOutcome::Stuck {
+                at_s: 1.0,
+                progress_m: 0.0
+            }
+            .failure()
+            .is_none()
+        );
     }
 
     #[test]

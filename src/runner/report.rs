@@ -601,7 +601,7 @@ pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunErr
     let jp = dir.join("report.json");
     let json =
         serde_json::to_string_pretty(report).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"));
-    std::fs::write(&jp, json + "\n").map_err(io_err(&jp))?;
+    crate::fsio::write_atomic(&jp, (json + "\n").as_bytes()).map_err(io_err(&jp))?;
 
     let t0 = sim
         .truth
@@ -659,7 +659,7 @@ pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunErr
         }
     }
     let mp = dir.join("report.md");
-    std::fs::write(&mp, md).map_err(io_err(&mp))
+    crate::fsio::write_atomic(&mp, md.as_bytes()).map_err(io_err(&mp))
 }
 
 /// What a run is judged on: the scores of the estimate sources and the robot's own run.
@@ -765,10 +765,24 @@ pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Scores {
 }
 
 /// Evaluates the scenario's expectations on the scores of the estimate sources and the
-/// robot's own run.
+/// robot's own run. A run whose physics diverged or whose robot tipped over
+/// ([`RobotOutcome::failure`](super::outcome::RobotOutcome::failure)) gets one more,
+/// failing, result that says so: such a run never passes.
 pub fn evaluate(sc: &LoadedScenario, scores: &Scores) -> Vec<ExpectationResult> {
-    sc.expectations
+    let mut results: Vec<ExpectationResult> = sc
+        .expectations
         .iter()
         .map(|x| x.evaluate(|metric, source| scores.metric(metric, source)))
-        .collect()
+        .collect();
+    if let Some(why) = scores.robot.outcome.failure() {
+        results.push(ExpectationResult {
+            text: format!("robot outcome is not {}", scores.robot.outcome.kind()),
+            holds: false,
+            lhs: None,
+            rhs: None,
+            margin: None,
+            note: Some(why),
+        });
+    }
+    results
 }

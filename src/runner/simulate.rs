@@ -488,9 +488,14 @@ fn motion_model(
             let (lo, hi) = world.terrain.domain();
             let cell = s.physics.heightfield_cell_m;
             // An unusable cell size is reported by the backend's parameter check; do not
-            // sample a grid of it first.
-            let grid = (cell.is_finite() && cell >= MIN_HEIGHTFIELD_CELL_M)
-                .then(|| HeightGrid::sample(&world.terrain, lo, hi, cell));
+            // sample a grid of it first, nor one too large.
+            let grid = if cell.is_finite() && cell >= MIN_HEIGHTFIELD_CELL_M {
+                HeightGrid::check_size(lo, hi, cell, "physics.heightfield_cell_m")
+                    .map_err(|e| sc.param_error(e))?;
+                Some(HeightGrid::sample(&world.terrain, lo, hi, cell))
+            } else {
+                None
+            };
             let obstacles = obstacles_of(world);
             Box::new(
                 Dynamic::new(
@@ -637,6 +642,13 @@ pub fn simulate_setup(
             return Err(RunError::Interrupted {
                 simulated_s: (last_t - start).as_secs_f64(),
             });
+        }
+        if recorder.as_ref().is_some_and(Recorder::failed)
+            && let Some(rec) = recorder.take()
+        {
+            // A failed write (a full disk): stop now and say why, rather than simulate on
+            // for a recording that cannot be written.
+            rec.finish()?;
         }
         let next_sensor = sensors.iter().map(|x| x.next_time()).min();
         let t = match next_sensor {
@@ -839,7 +851,10 @@ fn mujoco_motion(
     use vinebench_sim::physics::MujocoPhysics;
     vinebench_sim::physics::mjcf::check(&s.physics.mujoco).map_err(|e| sc.param_error(e))?;
     let (lo, hi) = world.terrain.domain();
-    let grid = HeightGrid::sample(&world.terrain, lo, hi, s.physics.mujoco.heightfield_cell_m);
+    let cell = s.physics.mujoco.heightfield_cell_m;
+    HeightGrid::check_size(lo, hi, cell, "physics.mujoco.heightfield_cell_m")
+        .map_err(|e| sc.param_error(e))?;
+    let grid = HeightGrid::sample(&world.terrain, lo, hi, cell);
     let obstacles = obstacles_of(world);
     let motion = Dynamic::new(
         &s.motion,

@@ -179,7 +179,8 @@ pub const ROBOT_METRICS: &[(&str, &str)] = &[
     ),
     (
         "route_completed",
-        "1 when the robot completed its route, 0 when it got stuck or a time limit stopped it",
+        "1 when the robot completed its route, 0 when it got stuck, a time limit stopped it, \
+         its physics diverged or it tipped over",
     ),
     (
         "max_cross_track_m",

@@ -380,7 +380,7 @@ pub fn altitude_svg(
 }
 
 fn write(path: &Path, svg: &str) -> Result<(), PlotError> {
-    std::fs::write(path, svg).map_err(|source| PlotError::Io {
+    crate::fsio::write_atomic(path, svg.as_bytes()).map_err(|source| PlotError::Io {
         path: path.display().to_string(),
         source,
     })
@@ -561,7 +561,8 @@ mod tests {
         let p2 = dir.path().join("top.svg");
         plot_trajectories_svg(&p2, &truth, &[("tracking_camera", &noisy)]).unwrap();
         assert!(is_svg(&std::fs::read_to_string(&p2).unwrap()));
-        let missing = dir.path().join("no/such/dir/x.svg");
+        // A folder that cannot exist: its parent is a file.
+        let missing = p.join("x.svg");
         assert!(matches!(
             plot_trajectories_svg(&missing, &truth, &[]),
             Err(PlotError::Io { .. })

@@ -184,16 +184,18 @@ pub fn write_tum(path: impl AsRef<Path>, traj: &Trajectory) -> io::Result<()> {
             ),
         ));
     }
-    std::fs::write(path, format_tum(traj))
+    crate::fsio::write_atomic(path, format_tum(traj).as_bytes())
 }
 
 /// Reads a TUM file (see the [module docs](self) for what is accepted).
 pub fn read_tum(path: impl AsRef<Path>) -> Result<Trajectory, TumError> {
     let path = path.as_ref();
-    let text = std::fs::read_to_string(path).map_err(|source| TumError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let text = crate::fsio::read_text_bounded(path, crate::fsio::MAX_DATA_INPUT_BYTES).map_err(
+        |source| TumError::Io {
+            path: path.to_path_buf(),
+            source,
+        },
+    )?;
     parse_tum(&text, path)
 }
 

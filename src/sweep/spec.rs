@@ -232,7 +232,9 @@ impl Sweep {
                 meta.len()
             )));
         }
-        let text = std::fs::read_to_string(path).map_err(|e| io(e.to_string()))?;
+        // Bounded: the file may grow (or be a device) after the size check.
+        let text = crate::fsio::read_text_bounded(path, MAX_SWEEP_FILE_BYTES)
+            .map_err(|e| io(e.to_string()))?;
         let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
         Sweep::from_str(&text, &file, &base)
     }

@@ -835,7 +835,7 @@ impl Eif {
         self.trajectory.push(PoseSample {
             stamp: f.t,
             world_from_body,
-            covariance: Some(cov),
+            covariance: Some(Box::new(cov)),
         });
     }
 
@@ -1106,7 +1106,7 @@ mod tests {
                 let truth = motion.at(t).world_from_body;
                 let dp = s.world_from_body.translation.vector - truth.translation.vector;
                 let dr = s.world_from_body.rotation.angle_to(&truth.rotation);
-                let cov = s.covariance.unwrap();
+                let cov = *s.covariance.as_deref().unwrap();
                 let pc = cov.fixed_view::<3, 3>(0, 0).into_owned();
                 let nees = dp.dot(&(pc.try_inverse().unwrap() * dp));
                 (t, dp.norm(), dr, (pc.trace() / 3.0).sqrt(), nees)
@@ -1190,7 +1190,7 @@ mod tests {
             let n = (30.0 * (t - 30.0).clamp(0.0, 60.0)).max(1.0);
             let bound = 0.02 + 3.0 * 0.003 * n.sqrt();
             assert!(err.amax() < bound, "t {t}: error {err} bound {bound}");
-            let cov = s.covariance.unwrap();
+            let cov = *s.covariance.as_deref().unwrap();
             for k in 0..3 {
                 assert!(
                     err[k].abs() < 3.0 * cov[(k, k)].sqrt() + 0.005,

@@ -153,7 +153,7 @@ impl GnssAhrsPoser {
         finite.then_some(PoseSample {
             stamp: fix.stamp,
             world_from_body,
-            covariance: Some(cov),
+            covariance: Some(Box::new(cov)),
         })
     }
 
@@ -507,7 +507,7 @@ mod tests {
         // A rotation error e about east turns the lever (sin ψ, −cos ψ, 0) into
         // (sin ψ, −cos ψ, −e·cos ψ); the body origin is the fix minus the lever, so
         // δz = +e·cos ψ: var(z) = cos²ψ σ², cov(z, e_x) = cos ψ σ², var(e_x) = σ².
-        let c = s.covariance.unwrap();
+        let c = *s.covariance.as_deref().unwrap();
         let cp = 0.2f64.cos();
         let mut expected = Matrix6::zeros();
         expected[(2, 2)] = cp * cp * sigma * sigma;

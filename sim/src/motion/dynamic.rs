@@ -31,6 +31,17 @@
 //! arrived and stopped, or as soon as the robot has made no progress along its route for
 //! `physics.stuck_timeout_s` while it should have been driving (for example blocked by a
 //! post): then [`MotionModel::outcome`] is [`MotionOutcome::Stuck`].
+//!
+//! # Physics failures
+//! After every physics step the body state is checked. A non-finite pose, velocity or
+//! joint speed, a speed above [`MAX_BODY_SPEED_MPS`], an angular speed above
+//! [`MAX_BODY_RATE_RADPS`] or an acceleration (velocity change over one step) above
+//! [`MAX_BODY_ACCEL_MPS2`] means the integration has diverged (an unphysical robot, a
+//! contact blow-up): the run ends at that step with [`MotionOutcome::PhysicsDiverged`],
+//! and the truth holds the last valid pose at rest from there on (nothing non-finite
+//! reaches the sensors). A body z axis more than [`TIP_OVER_TILT_DEG`] from the vertical
+//! for [`TIP_OVER_HOLD_S`] means the robot tipped over: the run ends with
+//! [`MotionOutcome::TippedOver`]. Both make the run fail.
 
 use super::{MotionModel, MotionOutcome};
 use crate::control::{FollowPhase, PlanarState, RouteFollower, TwistCommand};
@@ -48,6 +59,21 @@ use vinebench_msgs::Nanos;
 pub const PROGRESS_STEP_M: f64 = 0.05;
 /// Extra time for the drive to settle after the route, s, in the expected duration.
 const SETTLE_S: f64 = 2.0;
+/// Fastest the robot body may move, m/s (180 km/h: no field robot comes close); faster
+/// means the physics diverged.
+pub const MAX_BODY_SPEED_MPS: f64 = 50.0;
+/// Fastest the robot body may turn, rad/s (about 8 turns a second).
+pub const MAX_BODY_RATE_RADPS: f64 = 50.0;
+/// Largest acceleration of the body origin over one physics step, m/s² (about 1000 g;
+/// a hard collision with a post at cruise speed stays far below).
+pub const MAX_BODY_ACCEL_MPS2: f64 = 10_000.0;
+/// Tilt of the body z axis from the vertical beyond which the robot counts as tipped
+/// over, degrees: terrain slopes stay below 45°
+/// ([`crate::world::terrain::MAX_SLOPE_DEG`]), so a robot standing on its tracks or
+/// wheels stays well inside it.
+pub const TIP_OVER_TILT_DEG: f64 = 75.0;
+/// How long the tilt must stay beyond [`TIP_OVER_TILT_DEG`] before the run ends, s.
+pub const TIP_OVER_HOLD_S: f64 = 1.0;
 
 /// One committed physics step.
 #[derive(Clone, Debug)]
@@ -68,8 +94,22 @@ struct Grid {
 enum Phase {
     Waiting,
     Driving,
-    Arrived { step: u64 },
-    Stuck { step: u64 },
+    Arrived {
+        step: u64,
+    },
+    Stuck {
+        step: u64,
+    },
+    /// The physics diverged at this step (see [`Dynamic::divergence`]).
+    Diverged {
+        step: u64,
+    },
+    /// Tipped over: tilted beyond the bound since `since`, declared at `step`.
+    TippedOver {
+        step: u64,
+        since: u64,
+        tilt_deg: f64,
+    },
 }
 
 /// The drive controller between a twist command and the motors: yaw-rate loop, inverse
@@ -183,6 +223,12 @@ pub struct Dynamic<P: Physics> {
     collisions: Vec<CollisionEvent>,
     latest: Nanos,
     expected: Nanos,
+    /// Why the physics diverged (empty unless it did).
+    divergence: String,
+    /// The step since which the tilt has been beyond [`TIP_OVER_TILT_DEG`].
+    tilted_since: Option<u64>,
+    /// Steps of [`TIP_OVER_HOLD_S`].
+    tip_hold_steps: u64,
 }
 
 /// The robot standing on `surface` at `xy` with heading `yaw_rad`: body z along the
@@ -293,6 +339,9 @@ impl<P: Physics> Dynamic<P> {
             collisions: Vec::new(),
             latest: start,
             expected: Nanos::from_secs_f64(expected_s),
+            divergence: String::new(),
+            tilted_since: None,
+            tip_hold_steps: (TIP_OVER_HOLD_S / step_s).ceil() as u64,
         })
     }
 
@@ -351,9 +400,93 @@ impl<P: Physics> Dynamic<P> {
         self.drive.command(&command, yaw_rate, period);
     }
 
+    /// Why the state after a step is not physical (see the module documentation), or
+    /// `None`.
+    fn divergence(
+        &self,
+        body: &crate::physics::BodyState,
+        joints: &[crate::physics::JointState],
+    ) -> Option<String> {
+        let p = &body.world_from_body;
+        let finite = p.translation.vector.iter().all(|c| c.is_finite())
+            && p.rotation.coords.iter().all(|c| c.is_finite())
+            && body.velocity_in_world.iter().all(|c| c.is_finite())
+            && body.angular_velocity_in_world.iter().all(|c| c.is_finite())
+            && joints.iter().all(|j| j.speed_radps.is_finite());
+        if !finite {
+            return Some(
+                "the body pose, velocity or a drive joint speed is not finite (NaN or infinite)"
+                    .to_string(),
+            );
+        }
+        let speed = body.velocity_in_world.norm();
+        if speed > MAX_BODY_SPEED_MPS {
+            return Some(format!(
+                "body speed {speed:.4e} m/s above MAX_BODY_SPEED_MPS = {MAX_BODY_SPEED_MPS} m/s"
+            ));
+        }
+        let rate = body.angular_velocity_in_world.norm();
+        if rate > MAX_BODY_RATE_RADPS {
+            return Some(format!(
+                "body angular speed {rate:.4e} rad/s above MAX_BODY_RATE_RADPS = \
+                 {MAX_BODY_RATE_RADPS} rad/s"
+            ));
+        }
+        let accel = (body.velocity_in_world - self.newest().velocity).norm() / self.step_s;
+        if accel > MAX_BODY_ACCEL_MPS2 {
+            return Some(format!(
+                "body acceleration {accel:.4e} m/s² above MAX_BODY_ACCEL_MPS2 = \
+                 {MAX_BODY_ACCEL_MPS2} m/s²"
+            ));
+        }
+        None
+    }
+
+    /// After a divergence: the last valid pose at rest, one more step along the grid.
+    fn hold(&mut self) {
+        let prev = self.newest().clone();
+        self.grids.push_back(Grid {
+            index: prev.index + 1,
+            velocity: Vector3::zeros(),
+            angular_velocity: Vector3::zeros(),
+            joints: [0.0; MAX_DRIVE_JOINTS],
+            ..prev
+        });
+        while self.grids.len() > 4 {
+            self.grids.pop_front();
+        }
+    }
+
+    /// Tracks the tilt after step `k`: declares the robot tipped over once it has been
+    /// beyond [`TIP_OVER_TILT_DEG`] for [`TIP_OVER_HOLD_S`].
+    fn watch_tilt(&mut self, k: u64, pose: &Isometry3<f64>) {
+        let up = (pose.rotation * Vector3::z()).z.clamp(-1.0, 1.0);
+        let tilt_deg = up.acos().to_degrees();
+        if tilt_deg <= TIP_OVER_TILT_DEG {
+            self.tilted_since = None;
+            return;
+        }
+        let since = *self.tilted_since.get_or_insert(k);
+        let done = matches!(
+            self.phase,
+            Phase::Stuck { .. } | Phase::Diverged { .. } | Phase::TippedOver { .. }
+        );
+        if !done && k - since >= self.tip_hold_steps {
+            self.phase = Phase::TippedOver {
+                step: k,
+                since,
+                tilt_deg,
+            };
+        }
+    }
+
     /// Commits one physics step.
     fn step_once(&mut self) {
         let k = self.newest().index;
+        if matches!(self.phase, Phase::Diverged { .. }) {
+            self.hold();
+            return;
+        }
         if k.is_multiple_of(self.control_every) {
             self.control();
         }
@@ -361,6 +494,13 @@ impl<P: Physics> Dynamic<P> {
         self.physics.step(&refs);
         let body = self.physics.body();
         let joints = self.physics.joints();
+        if let Some(reason) = self.divergence(&body, &joints) {
+            self.phase = Phase::Diverged { step: k + 1 };
+            self.divergence = reason;
+            self.hold();
+            return;
+        }
+        self.watch_tilt(k + 1, &body.world_from_body);
         let prev = self.newest();
         let odometer_m = prev.odometer_m
             + (body.world_from_body.translation.vector - prev.pose.translation.vector).norm();
@@ -444,7 +584,9 @@ impl<P: Physics> MotionModel for Dynamic<P> {
     fn finished(&self) -> bool {
         match self.phase {
             Phase::Arrived { step } => self.latest >= self.time_of(step + self.still_after_steps),
-            Phase::Stuck { step } => self.latest >= self.time_of(step),
+            Phase::Stuck { step } | Phase::Diverged { step } | Phase::TippedOver { step, .. } => {
+                self.latest >= self.time_of(step)
+            }
             _ => false,
         }
     }
@@ -460,6 +602,21 @@ impl<P: Physics> MotionModel for Dynamic<P> {
                 progress_m: self.follower.progress_m(),
             },
             Phase::Arrived { .. } if self.finished() => MotionOutcome::Completed,
+            Phase::Diverged { step } if self.latest >= self.time_of(step) => {
+                MotionOutcome::PhysicsDiverged {
+                    at_s: step as f64 * self.step_s,
+                    reason: self.divergence.clone(),
+                }
+            }
+            Phase::TippedOver {
+                step,
+                since,
+                tilt_deg,
+            } if self.latest >= self.time_of(step) => MotionOutcome::TippedOver {
+                at_s: step as f64 * self.step_s,
+                tilted_at_s: since as f64 * self.step_s,
+                tilt_deg,
+            },
             _ => MotionOutcome::Running,
         }
     }

@@ -79,6 +79,37 @@ pub enum MotionOutcome {
         /// Arc length reached along the route, m.
         progress_m: f64,
     },
+    /// The physics state became non-finite or physically impossible for the robot (beyond
+    /// the bounds of [`dynamic`]: [`dynamic::MAX_BODY_SPEED_MPS`],
+    /// [`dynamic::MAX_BODY_RATE_RADPS`], [`dynamic::MAX_BODY_ACCEL_MPS2`]): the simulation
+    /// cannot be trusted from there on, and the run ends.
+    PhysicsDiverged {
+        /// Time of the first bad physics step, s after the start.
+        at_s: f64,
+        /// What was wrong, with the value and the bound.
+        reason: String,
+    },
+    /// The robot tipped over: its body z axis stayed more than
+    /// [`dynamic::TIP_OVER_TILT_DEG`] from the vertical for [`dynamic::TIP_OVER_HOLD_S`].
+    TippedOver {
+        /// When the run ended, s after the start.
+        at_s: f64,
+        /// When the tilt first went beyond the bound, s after the start.
+        tilted_at_s: f64,
+        /// The tilt when the run ended, degrees.
+        tilt_deg: f64,
+    },
+}
+
+impl MotionOutcome {
+    /// True for an outcome that makes the run invalid (physics diverged, robot tipped
+    /// over): such a run must not pass whatever its expectations say.
+    pub fn is_failure(&self) -> bool {
+        matches!(
+            self,
+            MotionOutcome::PhysicsDiverged { .. } | MotionOutcome::TippedOver { .. }
+        )
+    }
 }
 
 /// Something that moves the robot and knows its true state.

@@ -32,6 +32,8 @@ const GROUND_TAG: u128 = 3 << 64;
 /// Finest accepted terrain heightfield cell, m (a 176 m × 55 m vineyard at 5 cm is 3.9 M
 /// heights, 31 MB).
 pub const MIN_HEIGHTFIELD_CELL_M: f64 = 0.05;
+/// Most heights of a terrain heightfield ([`HeightGrid`]; 16 M heights are 128 MB).
+pub const MAX_HEIGHTFIELD_POINTS: usize = 16_000_000;
 
 const CHASSIS: rp::Group = rp::Group::GROUP_1;
 const RUNNING_GEAR: rp::Group = rp::Group::GROUP_2;
@@ -109,7 +111,37 @@ pub struct HeightGrid {
 }
 
 impl HeightGrid {
-    /// Samples `surface` on a grid of `cell_m` covering `[min, max]` (x and y).
+    /// Checks that a grid of `cell_m` over `[min, max]` holds at most
+    /// [`MAX_HEIGHTFIELD_POINTS`] heights (and that `cell_m` is usable); `path` names the
+    /// cell size's scenario key in the error. Allocates nothing.
+    pub fn check_size(
+        min: nalgebra::Vector2<f64>,
+        max: nalgebra::Vector2<f64>,
+        cell_m: f64,
+        path: &str,
+    ) -> Result<(), ParamError> {
+        require_positive(path, cell_m)?;
+        let points =
+            (((max.x - min.x) / cell_m).ceil() + 2.0) * (((max.y - min.y) / cell_m).ceil() + 2.0);
+        if points <= MAX_HEIGHTFIELD_POINTS as f64 {
+            return Ok(());
+        }
+        Err(ParamError::new(
+            path,
+            format!(
+                "a cell size giving at most {MAX_HEIGHTFIELD_POINTS} heights \
+                 (MAX_HEIGHTFIELD_POINTS) over the terrain's {:.0} m × {:.0} m, i.e. at least \
+                 {:.3} m",
+                max.x - min.x,
+                max.y - min.y,
+                ((max.x - min.x) * (max.y - min.y) / MAX_HEIGHTFIELD_POINTS as f64).sqrt()
+            ),
+            format!("{cell_m} ({points:.0} heights)"),
+        ))
+    }
+
+    /// Samples `surface` on a grid of `cell_m` covering `[min, max]` (x and y). Check the
+    /// size first ([`HeightGrid::check_size`]) for a grid that input decides.
     pub fn sample<S: Surface>(
         surface: &S,
         min: nalgebra::Vector2<f64>,

@@ -25,6 +25,10 @@ pub mod trace;
 
 pub use trace::{Hit, RayCaster, RayPacket};
 
+/// Most vertices of the rendered ground mesh (`render.terrain_cell_m` over the terrain);
+/// the default vineyard at 0.25 m has about 0.2 M.
+pub const MAX_TERRAIN_VERTICES: usize = 4_000_000;
+
 /// Builds the default backend for a scene: the two-level wide BVH of [`bvh`] (name `bvh`).
 pub fn build_default(scene: &TraceScene) -> Box<dyn RayCaster> {
     Box::new(bvh::TwoLevelBvh::build(scene))
@@ -137,6 +141,23 @@ pub fn build_renderer_with_mesh(
 ) -> Result<shade::Renderer, crate::params::ParamError> {
     use crate::params::{ParamError, RenderBackend};
     validate(p)?;
+    let (lo, hi) = world.terrain.domain();
+    let vertices = (((hi.x - lo.x) / p.terrain_cell_m).ceil() + 1.0)
+        * (((hi.y - lo.y) / p.terrain_cell_m).ceil() + 1.0);
+    if vertices.is_nan() || vertices > MAX_TERRAIN_VERTICES as f64 {
+        return Err(ParamError::new(
+            "render.terrain_cell_m",
+            format!(
+                "a cell size giving at most {MAX_TERRAIN_VERTICES} ground vertices \
+                 (MAX_TERRAIN_VERTICES) over the terrain's {:.0} m × {:.0} m, i.e. at least \
+                 {:.3} m",
+                hi.x - lo.x,
+                hi.y - lo.y,
+                ((hi.x - lo.x) * (hi.y - lo.y) / MAX_TERRAIN_VERTICES as f64).sqrt()
+            ),
+            format!("{} ({vertices:.0} vertices)", p.terrain_cell_m),
+        ));
+    }
     let opts = scene::GeometryOptions {
         terrain_cell_m: p.terrain_cell_m,
     };

@@ -19,6 +19,19 @@
 //!   `<mechanicalReduction>` and, as Drake reads it, the motor's `<drake:rotor_inertia
 //!   value>`: the drive train's inertia about the axle is the link's plus `J_rotor·N²`.
 //!
+//!
+//! # Limits
+//! A URDF is read whole and checked before anything is built from it: at most
+//! [`MAX_URDF_BYTES`], [`MAX_URDF_NODES`] XML nodes nested at most [`MAX_URDF_DEPTH`]
+//! deep, [`MAX_URDF_LINKS`] links and [`MAX_URDF_JOINTS`] joints; loading costs time
+//! linear in its size. Mass properties must be physical: every link at most
+//! [`MAX_LINK_MASS_KG`], the robot at most [`MAX_ROBOT_MASS_KG`], and each link's
+//! principal moments of inertia at most its mass times [`MAX_GYRATION_RADIUS_M`]²; every
+//! link, centre of mass and collision shape lies within [`MAX_ROBOT_EXTENT_M`] of
+//! `base_link`.
+//! Errors name the file, the element (`<link name="...">`) and, where the XML says it, the
+//! line and column.
+//!
 //! ```
 //! use vinebench_sim::robot::{Drive, RobotModel};
 //! let rover = RobotModel::builtin("mecanum-rover").expect("built-in");
@@ -28,6 +41,7 @@
 //! ```
 
 mod urdf;
+mod xml;
 
 use nalgebra::{Isometry3, Matrix3, Vector3};
 use thiserror::Error;
@@ -55,6 +69,26 @@ pub const TRACKED_VEHICLE_PLUGIN: &str = "gz::sim::systems::TrackedVehicle";
 pub const MECANUM_DRIVE_PLUGIN: &str = "gz::sim::systems::MecanumDrive";
 /// Most drive joints a robot may have (four mecanum wheels).
 pub const MAX_DRIVE_JOINTS: usize = 4;
+/// Largest URDF file vinebench reads, bytes (32 MiB).
+pub const MAX_URDF_BYTES: usize = 32 << 20;
+/// Most XML nodes (elements, text, comments) of a URDF.
+pub const MAX_URDF_NODES: u32 = 4_000_000;
+/// Deepest element nesting of a URDF (a URDF needs about 6 levels).
+pub const MAX_URDF_DEPTH: usize = 64;
+/// Most `<link>` elements of a URDF.
+pub const MAX_URDF_LINKS: usize = 100_000;
+/// Most `<joint>` elements of a URDF.
+pub const MAX_URDF_JOINTS: usize = 100_000;
+/// Heaviest link (`<inertial><mass value>`), kg.
+pub const MAX_LINK_MASS_KG: f64 = 20_000.0;
+/// Heaviest robot (all links together), kg: a large straddle tractor.
+pub const MAX_ROBOT_MASS_KG: f64 = 20_000.0;
+/// Largest radius of gyration of a link, m: each principal moment of inertia must be at
+/// most `mass · MAX_GYRATION_RADIUS_M²`.
+pub const MAX_GYRATION_RADIUS_M: f64 = 10.0;
+/// Farthest any link frame, centre of mass or collision shape may reach from
+/// `base_link`, m.
+pub const MAX_ROBOT_EXTENT_M: f64 = 100.0;
 
 /// A robot description that cannot be used. Every variant names the file.
 #[derive(Debug, Error)]
@@ -75,7 +109,22 @@ pub enum RobotError {
         /// The parser's message.
         message: String,
     },
-    /// A URDF element is missing or wrong.
+    /// A URDF element or attribute is missing or wrong, at a known place in the file.
+    #[error("{file}:{line}:{column}: {element}: {problem}")]
+    Located {
+        /// The file.
+        file: String,
+        /// Line of the element or attribute (1-based).
+        line: u32,
+        /// Column (1-based).
+        column: u32,
+        /// The element, e.g. `<link name="base_link">`.
+        element: String,
+        /// What is wrong and what was expected.
+        problem: String,
+    },
+    /// A URDF element is missing or wrong (where the file has no place for it, e.g. a
+    /// missing element).
     #[error("{file}: {element}: {problem}")]
     Invalid {
         /// The file.
@@ -445,12 +494,33 @@ impl RobotModel {
         RobotModel::from_urdf_str(text, file)
     }
 
-    /// Reads a URDF file.
+    /// Reads a URDF file (at most [`MAX_URDF_BYTES`]: a longer file, or an endless one
+    /// such as `/dev/zero`, is refused after reading one byte more).
     pub fn from_urdf_file(path: &std::path::Path) -> Result<RobotModel, RobotError> {
+        use std::io::Read;
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| RobotError::Io {
+        let io = |source| RobotError::Io {
             file: file.clone(),
             source,
+        };
+        let mut bytes = Vec::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(MAX_URDF_BYTES as u64 + 1).read_to_end(&mut bytes))
+            .map_err(io)?;
+        if bytes.len() > MAX_URDF_BYTES {
+            return Err(RobotError::Parse {
+                file,
+                message: format!("the file is larger than {MAX_URDF_BYTES} bytes (MAX_URDF_BYTES)"),
+            });
+        }
+        let text = String::from_utf8(bytes).map_err(|e| {
+            io(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!(
+                    "not UTF-8 text (invalid byte at offset {})",
+                    e.utf8_error().valid_up_to()
+                ),
+            ))
         })?;
         RobotModel::from_urdf_str(&text, &file)
     }

@@ -442,9 +442,89 @@ fn malformed_drives_name_the_element_and_what_was_expected() {
     ];
     for (text, needles) in cases {
         let err = error(&text);
-        assert!(err.starts_with("bad.urdf: "), "{err}");
+        assert!(err.starts_with("bad.urdf:"), "{err}");
         for n in needles {
             assert!(err.contains(n), "`{n}` not in: {err}");
         }
     }
+}
+
+#[test]
+fn bad_numbers_name_file_line_link_and_attribute() {
+    // `<mass value="heavy"/>` of base_link (line 41, the attribute at column 13).
+    let err = error(&with(
+        r#"<mass value="120.0"/>"#,
+        r#"<mass value="heavy"/>"#,
+    ));
+    assert!(
+        err.starts_with("bad.urdf:41:13: <link name=\"base_link\">: <inertial><mass value>:")
+            && err.contains("heavy")
+            && err.contains("kg"),
+        "{err}"
+    );
+    let err = error(&with(r#"<mass value="120.0"/>"#, "<mass/>"));
+    assert!(
+        err.starts_with("bad.urdf:41:7: <link name=\"base_link\">: <inertial><mass>: missing")
+            && err.contains("value"),
+        "{err}"
+    );
+    // A word among a vector's numbers (urdf-rs would skip it).
+    let err = error(&with(
+        r#"<origin xyz="-0.04 0.02 -0.03""#,
+        r#"<origin xyz="-0.04 oops 0.02 -0.03""#,
+    ));
+    assert!(
+        err.starts_with("bad.urdf:224:13: <joint name=\"imu_joint\">: <origin xyz>:")
+            && err.contains("3 finite numbers"),
+        "{err}"
+    );
+    let err = error(&with(r#"<mass value="120.0"/>"#, r#"<mass value="1e30"/>"#));
+    assert!(
+        err.starts_with("bad.urdf:38:")
+            && err.contains("base_link")
+            && err.contains("MAX_LINK_MASS_KG"),
+        "{err}"
+    );
+    let err = error(&with(
+        r#"<inertia ixx="4.9" ixy="0" ixz="0" iyy="10.4" iyz="0" izz="12.1"/>"#,
+        r#"<inertia ixx="4.9e6" ixy="0" ixz="0" iyy="10.4e6" iyz="0" izz="12.1e6"/>"#,
+    ));
+    assert!(err.contains("MAX_GYRATION_RADIUS_M"), "{err}");
+    let err = error(&with(
+        r#"<joint name="imu_joint" type="fixed">"#,
+        r#"<joint name="imu_joint" type="welded">"#,
+    ));
+    assert!(
+        err.starts_with("bad.urdf:221:3: <joint name=\"imu_joint\">: attribute type")
+            && err.contains("\"welded\""),
+        "{err}"
+    );
+}
+
+#[test]
+fn other_roots_truncation_and_deep_nesting_are_named() {
+    let err = error("<?xml version=\"1.0\"?>\n<sdf version=\"1.9\"><model name=\"m\"/></sdf>");
+    assert!(
+        err.starts_with("bad.urdf:2:1: <sdf>:") && err.contains("SDF") && err.contains("URDF"),
+        "{err}"
+    );
+    let full = BUILTIN_MODELS[0].2;
+    for cut in [full.len() / 3, full.len() / 2, full.len() - 10] {
+        let mut at = cut;
+        while !full.is_char_boundary(at) {
+            at -= 1;
+        }
+        let err = error(&full[..at]);
+        assert!(
+            err.starts_with("bad.urdf: not a valid URDF") && err.contains("truncated"),
+            "{err}"
+        );
+    }
+    let deep = format!(
+        "<robot name=\"r\">{}{}</robot>",
+        "<a>".repeat(100_000),
+        "</a>".repeat(100_000)
+    );
+    let err = error(&deep);
+    assert!(err.contains("MAX_URDF_DEPTH"), "{err}");
 }

@@ -1,9 +1,15 @@
-//! URDF parsing and validation: `urdf-rs` for the URDF elements, `roxmltree` for the
-//! `<gazebo>` extension blocks (which `urdf-rs` skips).
+//! URDF parsing and validation: `roxmltree` for the XML checks ([`super::xml`]: limits,
+//! located errors) and the `<gazebo>` extension blocks (which `urdf-rs` skips), `urdf-rs`
+//! for the URDF elements.
+//!
+//! Loading is linear in the file: every link's pose is resolved once, from its parent's
+//! (see [`resolve_tree`]).
 
+use super::xml::{self, Positions};
 use super::{
-    CollisionShape, Drive, DriveJoint, FOOTPRINT_LINK, GroundContact, MECANUM_DRIVE_PLUGIN,
-    MecanumDrive, MecanumWheel, RigidInertia, RobotError, RobotGeometry, RobotModel, Shape,
+    CollisionShape, Drive, DriveJoint, FOOTPRINT_LINK, GroundContact, MAX_GYRATION_RADIUS_M,
+    MAX_LINK_MASS_KG, MAX_ROBOT_EXTENT_M, MAX_ROBOT_MASS_KG, MECANUM_DRIVE_PLUGIN, MecanumDrive,
+    MecanumWheel, RigidInertia, RobotError, RobotGeometry, RobotModel, Shape,
     TRACKED_VEHICLE_PLUGIN, Track, TrackedDrive,
 };
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
@@ -61,16 +67,25 @@ struct Extensions {
 /// Parent link, `parent_from_child` at zero angle, the joint.
 type ParentOf<'a> = BTreeMap<&'a str, (&'a str, Isometry3<f64>, &'a urdf_rs::Joint)>;
 
-struct Ctx<'a> {
+struct Ctx<'a, 'input> {
     source: &'a str,
+    doc: &'a roxmltree::Document<'input>,
+    /// Where the named elements are.
+    positions: Positions,
 }
 
-impl Ctx<'_> {
+impl Ctx<'_, '_> {
+    /// An error about `element`: located at the element when the file has it
+    /// ([`RobotError::Located`]), else [`RobotError::Invalid`].
     fn invalid(&self, element: impl Into<String>, problem: impl Into<String>) -> RobotError {
-        RobotError::Invalid {
-            file: self.source.to_string(),
-            element: element.into(),
-            problem: problem.into(),
+        let element = element.into();
+        match self.positions.get(&element) {
+            Some(&at) => xml::located(self.doc, self.source, at, element, problem),
+            None => RobotError::Invalid {
+                file: self.source.to_string(),
+                element,
+                problem: problem.into(),
+            },
         }
     }
 }
@@ -96,11 +111,19 @@ fn finite3(v: &urdf_rs::Vec3) -> bool {
 
 /// Parses and validates URDF text (see the module documentation of [`super`]).
 pub(super) fn parse(text: &str, source: &str) -> Result<RobotModel, RobotError> {
+    // The XML checks first: limits, located errors, and nothing that urdf-rs's recursive
+    // tree could overflow the stack with.
+    let doc = xml::document(text, source)?;
+    let positions = xml::check(&doc, source)?;
     let robot = urdf_rs::read_from_string(text).map_err(|e| RobotError::Parse {
         file: source.to_string(),
         message: e.to_string(),
     })?;
-    let cx = Ctx { source };
+    let cx = Ctx {
+        source,
+        doc: &doc,
+        positions,
+    };
 
     let links: BTreeSet<&str> = robot.links.iter().map(|l| l.name.as_str()).collect();
     if links.len() != robot.links.len() {
@@ -154,22 +177,14 @@ pub(super) fn parse(text: &str, source: &str) -> Result<RobotModel, RobotError> 
 
     // root_from_link for every link (drive joints at zero angle), and whether the chain
     // to the root is fixed joints only.
-    let root_from = |start: &str| -> Result<(String, Isometry3<f64>, bool), RobotError> {
-        let mut pose = Isometry3::identity();
-        let mut link = start;
-        let mut fixed = true;
-        let mut seen = BTreeSet::new();
-        while let Some((parent, parent_from_child, joint)) = parent_of.get(link) {
-            if !seen.insert(link) {
-                return Err(cx.invalid(joint_el(&joint.name), "the joints form a cycle"));
-            }
-            fixed &= joint.joint_type == urdf_rs::JointType::Fixed;
-            pose = parent_from_child * pose;
-            link = parent;
-        }
-        Ok((link.to_string(), pose, fixed))
+    let tree = resolve_tree(&cx, &links, &parent_of)?;
+    // Every link is resolved (resolve_tree covers `links`).
+    let root_from = |link: &str| {
+        tree.get(link)
+            .copied()
+            .unwrap_or(("", Isometry3::identity(), true))
     };
-    let (base_root, root_from_base, base_fixed) = root_from(BASE_LINK)?;
+    let (base_root, root_from_base, base_fixed) = root_from(BASE_LINK);
     if !base_fixed {
         return Err(cx.invalid(
             link_el(BASE_LINK),
@@ -179,7 +194,7 @@ pub(super) fn parse(text: &str, source: &str) -> Result<RobotModel, RobotError> 
     let mut body_from_link: BTreeMap<&str, Isometry3<f64>> = BTreeMap::new();
     let mut tf = StaticTransforms::new(BASE_LINK);
     for l in &links {
-        let (root, root_from_link, fixed) = root_from(l)?;
+        let (root, root_from_link, fixed) = root_from(l);
         if root != base_root {
             return Err(cx.invalid(
                 link_el(l),
@@ -187,6 +202,16 @@ pub(super) fn parse(text: &str, source: &str) -> Result<RobotModel, RobotError> 
             ));
         }
         let pose = root_from_base.inverse() * root_from_link;
+        let reach = pose.translation.vector.norm();
+        if reach.is_nan() || reach > MAX_ROBOT_EXTENT_M {
+            return Err(cx.invalid(
+                link_el(l),
+                format!(
+                    "lies {reach:e} m from {BASE_LINK}; every link must lie within \
+                     {MAX_ROBOT_EXTENT_M} m (MAX_ROBOT_EXTENT_M)"
+                ),
+            ));
+        }
         body_from_link.insert(l, pose);
         if *l != BASE_LINK && fixed {
             tf.insert(l, pose);
@@ -217,7 +242,7 @@ pub(super) fn parse(text: &str, source: &str) -> Result<RobotModel, RobotError> 
         links: gazebo_links,
         plugins,
         transmissions,
-    } = extension_blocks(&cx, text)?;
+    } = extension_blocks(cx.doc);
 
     let contact = |link: &str| -> Result<GroundContact, RobotError> {
         let el = format!("<gazebo reference=\"{link}\">");
@@ -648,6 +673,91 @@ pub(super) fn parse(text: &str, source: &str) -> Result<RobotModel, RobotError> 
     })
 }
 
+/// Links whose pose [`resolve_tree`] multiplies out joint by joint from their root; deeper
+/// links start from the pose of their ancestor this many joints up.
+const POSE_WINDOW: usize = 16;
+
+/// For every link: its tree's root, `root_from_link` (drive joints at zero angle) and
+/// whether the chain to the root is fixed joints only.
+type Resolved<'a> = BTreeMap<&'a str, (&'a str, Isometry3<f64>, bool)>;
+
+/// Resolves every link of the joint tree in time linear in the links (a link is walked
+/// from at most [`POSE_WINDOW`] joints below the nearest resolved ancestor), or names a
+/// joint of a cycle.
+///
+/// A link at most [`POSE_WINDOW`] joints below its root gets `root_from_link` multiplied
+/// out from the link up (`P₁·(P₂·(…·Pₙ))`), bit for bit as a walk to the root gives it;
+/// a deeper one `root_from_ancestor · (…)` of the ancestor [`POSE_WINDOW`] joints up.
+fn resolve_tree<'a>(
+    cx: &Ctx,
+    links: &BTreeSet<&'a str>,
+    parent_of: &ParentOf<'a>,
+) -> Result<Resolved<'a>, RobotError> {
+    // Depth and root of every link; cycles found walking from base_link first, then from
+    // each link in name order (each link is pushed at most once over all walks).
+    let mut depth: BTreeMap<&'a str, (usize, &'a str)> = BTreeMap::new();
+    for start in std::iter::once(BASE_LINK).chain(links.iter().copied()) {
+        let Some(&start) = links.get(start) else {
+            continue;
+        };
+        let mut walk: Vec<&'a str> = Vec::new();
+        let mut on_walk: BTreeSet<&'a str> = BTreeSet::new();
+        let mut link = start;
+        let (mut d, root) = loop {
+            if let Some(&known) = depth.get(link) {
+                break known;
+            }
+            match parent_of.get(link) {
+                None => {
+                    depth.insert(link, (0, link));
+                    break (0, link);
+                }
+                Some((parent, _, joint)) => {
+                    if !on_walk.insert(link) {
+                        return Err(cx.invalid(joint_el(&joint.name), "the joints form a cycle"));
+                    }
+                    walk.push(link);
+                    link = parent;
+                }
+            }
+        };
+        while let Some(l) = walk.pop() {
+            d += 1;
+            depth.insert(l, (d, root));
+        }
+    }
+    let mut order: Vec<(usize, &'a str)> = depth.iter().map(|(l, (d, _))| (*d, *l)).collect();
+    order.sort_unstable();
+    let mut resolved: Resolved<'a> = BTreeMap::new();
+    for (d, start) in order {
+        let root = depth.get(start).map_or(start, |&(_, r)| r);
+        let mut pose = Isometry3::identity();
+        let mut fixed = true;
+        let mut link = start;
+        for _ in 0..d.min(POSE_WINDOW) {
+            let Some((parent, parent_from_child, joint)) = parent_of.get(link) else {
+                break;
+            };
+            fixed &= joint.joint_type == urdf_rs::JointType::Fixed;
+            pose = parent_from_child * pose;
+            link = parent;
+        }
+        let entry = if d <= POSE_WINDOW {
+            (root, pose, fixed)
+        } else {
+            // The ancestor is shallower: already resolved.
+            let (_, above, above_fixed) =
+                resolved
+                    .get(link)
+                    .copied()
+                    .unwrap_or((root, Isometry3::identity(), true));
+            (root, above * pose, above_fixed && fixed)
+        };
+        resolved.insert(start, entry);
+    }
+    Ok(resolved)
+}
+
 fn check_plugin_value(
     cx: &Ctx,
     el: &str,
@@ -694,6 +804,15 @@ fn rigid_inertia(
                 format!("<mass value> must be a finite number >= 0, found {m}"),
             ));
         }
+        if m > MAX_LINK_MASS_KG {
+            return Err(cx.invalid(
+                el(),
+                format!(
+                    "<mass value> must be at most {MAX_LINK_MASS_KG} kg (MAX_LINK_MASS_KG), \
+                     found {m:e} kg"
+                ),
+            ));
+        }
         if !tensor.iter().all(|c| c.is_finite())
             || !finite3(&l.inertial.origin.xyz)
             || !finite3(&l.inertial.origin.rpy)
@@ -714,11 +833,33 @@ fn rigid_inertia(
                 ),
             ));
         }
+        let largest = a.max(b).max(c);
+        let bound = m * MAX_GYRATION_RADIUS_M * MAX_GYRATION_RADIUS_M;
+        if largest > bound {
+            return Err(cx.invalid(
+                el(),
+                format!(
+                    "<inertia> is too large for the link's {m} kg: principal moments must be at \
+                     most mass · ({MAX_GYRATION_RADIUS_M} m)² = {bound:.4e} kg·m² \
+                     (MAX_GYRATION_RADIUS_M), found {largest:.4e} kg·m²"
+                ),
+            ));
+        }
         let body_from_inertial = body_from_link
             .get(l.name.as_str())
             .copied()
             .unwrap_or_else(Isometry3::identity)
             * pose_of(&l.inertial.origin);
+        let reach = body_from_inertial.translation.vector.norm();
+        if reach.is_nan() || reach > MAX_ROBOT_EXTENT_M {
+            return Err(cx.invalid(
+                el(),
+                format!(
+                    "its centre of mass lies {reach:e} m from {BASE_LINK}; it must lie within \
+                     {MAX_ROBOT_EXTENT_M} m (MAX_ROBOT_EXTENT_M)"
+                ),
+            ));
+        }
         let r = body_from_inertial.rotation.to_rotation_matrix();
         parts.push((
             m,
@@ -733,11 +874,27 @@ fn rigid_inertia(
             "the links' masses must add up to more than 0 kg",
         ));
     }
+    if mass > MAX_ROBOT_MASS_KG {
+        return Err(cx.invalid(
+            "<inertial>",
+            format!(
+                "the links' masses must add up to at most {MAX_ROBOT_MASS_KG} kg \
+                 (MAX_ROBOT_MASS_KG), found {mass:e} kg"
+            ),
+        ));
+    }
     let com = parts.iter().fold(Vector3::zeros(), |a, p| a + p.1 * p.0) / mass;
     let inertia = parts.iter().fold(Matrix3::zeros(), |acc, (m, c, i)| {
         let d = c - com;
         acc + i + (Matrix3::identity() * d.norm_squared() - d * d.transpose()) * *m
     });
+    // Bounded masses, moments and distances keep these finite; a last check all the same.
+    if !(com.iter().all(|c| c.is_finite()) && inertia.iter().all(|c| c.is_finite())) {
+        return Err(cx.invalid(
+            "<inertial>",
+            "the links' mass properties do not add up to a finite centre of mass and inertia",
+        ));
+    }
     Ok(RigidInertia {
         mass_kg: mass,
         com_in_body: com,
@@ -791,13 +948,32 @@ fn collision_shapes(
                     ));
                 }
             };
+            let body_from_shape = body_from_link
+                .get(l.name.as_str())
+                .copied()
+                .unwrap_or_else(Isometry3::identity)
+                * pose_of(&c.origin);
+            let size = match &shape {
+                Shape::Box { half_extents_m } => half_extents_m.norm(),
+                Shape::Cylinder {
+                    radius_m,
+                    half_length_m,
+                } => radius_m.hypot(*half_length_m),
+                Shape::Sphere { radius_m } => *radius_m,
+            };
+            let reach = body_from_shape.translation.vector.norm() + size;
+            if reach.is_nan() || reach > MAX_ROBOT_EXTENT_M {
+                return Err(cx.invalid(
+                    el(),
+                    format!(
+                        "a <collision> shape reaches {reach:e} m from {BASE_LINK}; shapes must \
+                         stay within {MAX_ROBOT_EXTENT_M} m (MAX_ROBOT_EXTENT_M)"
+                    ),
+                ));
+            }
             out.push(CollisionShape {
                 link: l.name.clone(),
-                body_from_shape: body_from_link
-                    .get(l.name.as_str())
-                    .copied()
-                    .unwrap_or_else(Isometry3::identity)
-                    * pose_of(&c.origin),
+                body_from_shape,
                 shape,
                 running_gear: false,
             });
@@ -808,11 +984,7 @@ fn collision_shapes(
 
 /// The `<gazebo reference>` blocks by link, the `<gazebo><plugin>` blocks and the
 /// `<transmission>` blocks by joint.
-fn extension_blocks(cx: &Ctx, text: &str) -> Result<Extensions, RobotError> {
-    let doc = roxmltree::Document::parse(text).map_err(|e| RobotError::Parse {
-        file: cx.source.to_string(),
-        message: e.to_string(),
-    })?;
+fn extension_blocks(doc: &roxmltree::Document) -> Extensions {
     let mut links: BTreeMap<String, GazeboLink> = BTreeMap::new();
     let mut plugins = Vec::new();
     let mut transmissions = BTreeMap::new();
@@ -893,9 +1065,9 @@ fn extension_blocks(cx: &Ctx, text: &str) -> Result<Extensions, RobotError> {
             }
         }
     }
-    Ok(Extensions {
+    Extensions {
         links,
         plugins,
         transmissions,
-    })
+    }
 }

@@ -121,10 +121,25 @@ impl Camera {
             0.0,
             1e3 / rate_hz / 4.0,
         )?;
-        let latency = latency_from_ms(
-            &format!("{path}.latency_ms"),
-            p.latency_ms.unwrap_or(DEFAULT_LATENCY_MS),
-        )?;
+        let latency_ms = p.latency_ms.unwrap_or(DEFAULT_LATENCY_MS);
+        let latency = latency_from_ms(&format!("{path}.latency_ms"), latency_ms, rate_hz)?;
+        let pixels = f64::from(spec.intrinsics.width) * f64::from(spec.intrinsics.height);
+        let in_flight = rate_hz * latency_ms * 1e-3 * pixels;
+        if in_flight > super::MAX_IN_FLIGHT_PIXELS {
+            return Err(ParamError::new(
+                format!("{path}.latency_ms"),
+                format!(
+                    "a latency keeping at most {:e} pixels of images in flight \
+                     (MAX_IN_FLIGHT_PIXELS: rate_hz · latency · width · height), i.e. at most {} \
+                     ms at {rate_hz} Hz and {}×{} px",
+                    super::MAX_IN_FLIGHT_PIXELS,
+                    super::MAX_IN_FLIGHT_PIXELS / (rate_hz * pixels) * 1e3,
+                    spec.intrinsics.width,
+                    spec.intrinsics.height
+                ),
+                latency_ms,
+            ));
+        }
         let exposure_ms = p.exposure_ms.unwrap_or(0.0);
         crate::params::require_in(
             &format!("{path}.exposure_ms"),

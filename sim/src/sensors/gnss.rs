@@ -134,7 +134,7 @@ impl Gnss {
     ) -> Result<Gnss, ParamError> {
         let path = |k: &str| format!("sensors.gnss.{k}");
         let rate_hz = require_rate(&path("rate_hz"), p.rate_hz)?;
-        let latency = latency_from_ms(&path("latency_ms"), p.latency_ms)?;
+        let latency = latency_from_ms(&path("latency_ms"), p.latency_ms, rate_hz)?;
         let vel_sigma = require_non_negative(&path("velocity_sigma_mps"), p.velocity_sigma_mps)?;
         let scale = require_positive(&path("reported_variance_scale"), p.reported_variance_scale)?;
         let body_from_antenna = mount(ctx, "gnss", &p.frame)?;

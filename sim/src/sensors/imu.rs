@@ -136,7 +136,7 @@ impl Imu {
     pub fn new(p: &ImuParams, ctx: &SensorContext) -> Result<Imu, ParamError> {
         let path = |k: &str| format!("sensors.imu.{k}");
         let rate_hz = require_rate(&path("rate_hz"), p.rate_hz)?;
-        let latency = latency_from_ms(&path("latency_ms"), p.latency_ms)?;
+        let latency = latency_from_ms(&path("latency_ms"), p.latency_ms, rate_hz)?;
         let nn = |k: &str, v: f64| require_non_negative(&path(k), v);
         let gyro_density = nn("gyro_noise_density_dps_rthz", p.gyro_noise_density_dps_rthz)?;
         let gyro_instab = nn("gyro_bias_instability_dph", p.gyro_bias_instability_dph)?;

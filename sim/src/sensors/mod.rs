@@ -99,6 +99,13 @@ pub fn build_cameras(
     ctx: &SensorContext,
     renderer: &std::sync::Arc<crate::render::shade::Renderer>,
 ) -> Result<Vec<Box<dyn SensorModel>>, ParamError> {
+    if cameras.len() > MAX_CAMERAS {
+        return Err(ParamError::new(
+            "sensors.cameras",
+            format!("at most {MAX_CAMERAS} cameras (MAX_CAMERAS)"),
+            format!("{} cameras", cameras.len()),
+        ));
+    }
     let mut names = std::collections::BTreeSet::new();
     let mut out: Vec<Box<dyn SensorModel>> = Vec::with_capacity(cameras.len());
     for (i, p) in cameras.iter().enumerate() {
@@ -126,6 +133,14 @@ pub const MIN_RATE_HZ: f64 = 1e-6;
 pub const MAX_RATE_HZ: f64 = 1e6;
 /// Longest accepted latency, ms.
 pub const MAX_LATENCY_MS: f64 = 3_600_000.0;
+/// Most messages of one sensor in flight at once (`rate_hz · latency`): they wait in
+/// memory between their stamp and their arrival.
+pub const MAX_IN_FLIGHT_MESSAGES: f64 = 100_000.0;
+/// Most image pixels of one camera in flight at once (`rate_hz · latency · width ·
+/// height`; about 1 GB of images).
+pub const MAX_IN_FLIGHT_PIXELS: f64 = 2e8;
+/// Most `[[sensors.cameras]]`.
+pub const MAX_CAMERAS: usize = 16;
 
 /// Checks a sample rate: finite, in [[`MIN_RATE_HZ`], [`MAX_RATE_HZ`]].
 pub(crate) fn require_rate(path: &str, rate_hz: f64) -> Result<f64, ParamError> {
@@ -140,9 +155,26 @@ pub(crate) fn require_rate(path: &str, rate_hz: f64) -> Result<f64, ParamError> 
     }
 }
 
-/// Checks a latency in ms (finite, in [0, [`MAX_LATENCY_MS`]]) and converts it.
-pub(crate) fn latency_from_ms(path: &str, latency_ms: f64) -> Result<Nanos, ParamError> {
+/// Checks a latency in ms (finite, in [0, [`MAX_LATENCY_MS`]], and at most
+/// [`MAX_IN_FLIGHT_MESSAGES`] samples at `rate_hz` in flight) and converts it.
+pub(crate) fn latency_from_ms(
+    path: &str,
+    latency_ms: f64,
+    rate_hz: f64,
+) -> Result<Nanos, ParamError> {
     crate::params::require_in(path, latency_ms, 0.0, MAX_LATENCY_MS)?;
+    let in_flight = rate_hz * latency_ms * 1e-3;
+    if in_flight > MAX_IN_FLIGHT_MESSAGES {
+        return Err(ParamError::new(
+            path,
+            format!(
+                "a latency keeping at most {MAX_IN_FLIGHT_MESSAGES} messages in flight at \
+                 {rate_hz} Hz (MAX_IN_FLIGHT_MESSAGES), i.e. at most {} ms",
+                MAX_IN_FLIGHT_MESSAGES / rate_hz * 1e3
+            ),
+            latency_ms,
+        ));
+    }
     Ok(Nanos::from_secs_f64(latency_ms * 1e-3))
 }
 

@@ -92,7 +92,7 @@ impl TrackingCamera {
     ) -> Result<TrackingCamera, ParamError> {
         let path = |k: &str| format!("sensors.tracking_camera.{k}");
         let rate_hz = require_rate(&path("rate_hz"), p.rate_hz)?;
-        let latency = latency_from_ms(&path("latency_ms"), p.latency_ms)?;
+        let latency = latency_from_ms(&path("latency_ms"), p.latency_ms, rate_hz)?;
         let nn = |k: &str, v: f64| require_non_negative(&path(k), v);
         let scale_sigma = nn("scale_error_sigma", p.scale_error_sigma)?;
         let pitch_sigma = nn("pitch_bias_sigma_deg", p.pitch_bias_sigma_deg)?.to_radians();

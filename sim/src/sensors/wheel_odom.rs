@@ -174,7 +174,7 @@ impl WheelOdom {
     pub fn new(p: &WheelOdomParams, ctx: &SensorContext) -> Result<WheelOdom, ParamError> {
         let path = |k: &str| format!("sensors.wheel_odom.{k}");
         let rate_hz = require_rate(&path("rate_hz"), p.rate_hz)?;
-        let latency = latency_from_ms(&path("latency_ms"), p.latency_ms)?;
+        let latency = latency_from_ms(&path("latency_ms"), p.latency_ms, rate_hz)?;
         let speed_sigma = require_non_negative(&path("speed_sigma_mps"), p.speed_sigma_mps)?;
         let positive = |x: f64| x.is_finite() && x > 0.0;
         let encoders = match ctx.geometry.kinematics {

@@ -28,6 +28,8 @@ use std::f64::consts::{PI, TAU};
 
 /// Largest accepted terrain grid (points); 20 M heights are 160 MB.
 pub const MAX_GRID_POINTS: usize = 20_000_000;
+/// Widest terrain margin beyond the rows' footprint, m (`world.terrain.margin_m`).
+pub const MAX_MARGIN_M: f64 = 1_000.0;
 /// Largest accepted |slope| along or across the rows, degrees (exclusive).
 pub const MAX_SLOPE_DEG: f64 = 45.0;
 /// The undulation wavelength must span at least this many grid cells (the spline
@@ -194,7 +196,15 @@ impl Terrain {
         if nxf * nyf > MAX_GRID_POINTS as f64 {
             return Err(ParamError::new(
                 "world.terrain.cell_m",
-                format!("a cell size giving at most {MAX_GRID_POINTS} grid points"),
+                format!(
+                    "a cell size giving at most {MAX_GRID_POINTS} grid points (MAX_GRID_POINTS) \
+                     over the terrain's {:.0} m × {:.0} m (the rows' footprint: \
+                     world.rows.length_m, count × spacing_m, plus world.headlands.width_m \
+                     and world.terrain.margin_m on every side), i.e. at least {:.3} m",
+                    span.x,
+                    span.y,
+                    ((span.x * span.y) / MAX_GRID_POINTS as f64).sqrt()
+                ),
                 format!("{cell} ({nxf} × {nyf} points)"),
             ));
         }
@@ -345,6 +355,13 @@ impl Surface for Terrain {
 pub fn validate_params(p: &TerrainParams) -> Result<(), ParamError> {
     require_positive("world.terrain.cell_m", p.cell_m)?;
     require_non_negative("world.terrain.margin_m", p.margin_m)?;
+    if p.margin_m > MAX_MARGIN_M {
+        return Err(ParamError::new(
+            "world.terrain.margin_m",
+            format!("at most {MAX_MARGIN_M} m (MAX_MARGIN_M)"),
+            p.margin_m,
+        ));
+    }
     for (path, v) in [
         ("world.terrain.slope_along_deg", p.slope_along_deg),
         ("world.terrain.slope_across_deg", p.slope_across_deg),

@@ -29,6 +29,30 @@ pub const MAX_CURVATURE_FOOTPRINT: f64 = 0.5;
 /// A random size (trunk height or diameter, canopy height or width) is clamped to at
 /// least this fraction of its mean so it stays positive.
 pub const SIZE_FLOOR_FRACTION: f64 = 0.1;
+/// Most rows a world may have (`world.rows.count`).
+pub const MAX_ROWS: u32 = 1_000;
+/// Longest row, m (`world.rows.length_m`).
+pub const MAX_ROW_LENGTH_M: f64 = 10_000.0;
+/// Widest row spacing, m (`world.rows.spacing_m`).
+pub const MAX_ROW_SPACING_M: f64 = 50.0;
+/// Widest headland, m (`world.headlands.width_m`).
+pub const MAX_HEADLAND_WIDTH_M: f64 = 1_000.0;
+/// Most trellis posts in a world (rows × posts per row; `world.posts.spacing_m`).
+pub const MAX_POSTS: f64 = 200_000.0;
+/// Most planting slots in a world (rows × slots per row; `world.plants.spacing_m`).
+pub const MAX_PLANTS: f64 = 200_000.0;
+/// Most trellis wire heights (`world.posts.wire_heights_m`).
+pub const MAX_WIRE_HEIGHTS: usize = 16;
+/// Most AprilTag boards (`world.tags`).
+pub const MAX_TAGS: usize = 1_000;
+/// Most occluder boxes (`world.occluders`).
+pub const MAX_OCCLUDERS: usize = 10_000;
+/// Most distinct vine canopies (`world.canopy.prototypes`).
+pub const MAX_PROTOTYPES: u32 = 64;
+/// Most shoots per vine (`world.canopy.shoots_per_plant`).
+pub const MAX_SHOOTS_PER_PLANT: u32 = 200;
+/// Most grape bunches per vine (`world.canopy.bunches_per_plant`).
+pub const MAX_BUNCHES_PER_PLANT: u32 = 200;
 
 /// A trellis post.
 #[derive(Clone, Debug, PartialEq)]
@@ -190,12 +214,19 @@ fn place_tag(t: &TagParams, layout: &RowLayout, terrain: &Terrain) -> TagBoard {
 }
 
 /// Checks every `[world.*]` value; the first problem is returned with its dotted path.
+///
+/// Sizes the input drives are bounded before anything is generated: [`MAX_ROWS`],
+/// [`MAX_ROW_LENGTH_M`], [`MAX_ROW_SPACING_M`], [`MAX_HEADLAND_WIDTH_M`], [`MAX_POSTS`],
+/// [`MAX_PLANTS`], [`MAX_WIRE_HEIGHTS`], [`MAX_TAGS`], [`MAX_OCCLUDERS`],
+/// [`MAX_PROTOTYPES`], [`MAX_SHOOTS_PER_PLANT`], [`MAX_BUNCHES_PER_PLANT`] (and the
+/// terrain's [`terrain::MAX_GRID_POINTS`]); each error names the key to change.
 pub fn validate(p: &WorldParams) -> Result<(), ParamError> {
     validate_headlands(&p.headlands)?;
     validate_rows(&p.rows, &p.headlands)?;
     validate_posts(&p.posts)?;
     validate_plants(&p.plants)?;
     validate_canopy(&p.canopy)?;
+    validate_counts(p)?;
     for (i, t) in p.tags.iter().enumerate() {
         validate_tag(&format!("world.tags[{i}]"), t, p.rows.count)?;
     }
@@ -255,12 +286,30 @@ fn validate_canopy(p: &CanopyParams) -> Result<(), ParamError> {
         ));
     }
     require_positive("world.canopy.leaf_size_m", p.leaf_size_m)?;
-    if p.prototypes < 1 {
+    if p.prototypes < 1 || p.prototypes > MAX_PROTOTYPES {
         return Err(ParamError::new(
             "world.canopy.prototypes",
-            "at least 1",
+            format!("1 to {MAX_PROTOTYPES} (MAX_PROTOTYPES)"),
             p.prototypes,
         ));
+    }
+    for (path, n, max, name) in [
+        (
+            "world.canopy.shoots_per_plant",
+            p.shoots_per_plant,
+            MAX_SHOOTS_PER_PLANT,
+            "MAX_SHOOTS_PER_PLANT",
+        ),
+        (
+            "world.canopy.bunches_per_plant",
+            p.bunches_per_plant,
+            MAX_BUNCHES_PER_PLANT,
+            "MAX_BUNCHES_PER_PLANT",
+        ),
+    ] {
+        if n > max {
+            return Err(ParamError::new(path, format!("at most {max} ({name})"), n));
+        }
     }
     if p.leaves_per_plant > 20_000 {
         return Err(ParamError::new(
@@ -282,19 +331,112 @@ fn require_finite(path: &str, value: f64) -> Result<f64, ParamError> {
 
 fn validate_headlands(p: &HeadlandsParams) -> Result<(), ParamError> {
     require_non_negative("world.headlands.width_m", p.width_m)?;
+    require_at_most(
+        "world.headlands.width_m",
+        p.width_m,
+        MAX_HEADLAND_WIDTH_M,
+        "MAX_HEADLAND_WIDTH_M",
+    )?;
+    Ok(())
+}
+
+/// `value <= max` (a positive finite `value` already checked), else an error naming the
+/// limit's constant.
+fn require_at_most(path: &str, value: f64, max: f64, name: &str) -> Result<f64, ParamError> {
+    if value <= max {
+        Ok(value)
+    } else {
+        Err(ParamError::new(
+            path,
+            format!("at most {max} ({name})"),
+            value,
+        ))
+    }
+}
+
+/// The numbers of posts, planting slots, wire heights, tags and occluders: bounded
+/// before any is generated, each naming the key that sets it.
+fn validate_counts(p: &WorldParams) -> Result<(), ParamError> {
+    let rows = f64::from(p.rows.count);
+    let length = p.rows.length_m;
+    // Posts: 0, spacing, ... and the end post; slots: spacing/2 + j·spacing < length.
+    let posts = rows * (length / p.posts.spacing_m + 2.0);
+    if posts.is_nan() || posts > MAX_POSTS {
+        return Err(ParamError::new(
+            "world.posts.spacing_m",
+            format!(
+                "a spacing giving at most {MAX_POSTS} posts over world.rows.count = {} rows of \
+                 {length} m (MAX_POSTS), i.e. at least {} m",
+                p.rows.count,
+                rows * length / (MAX_POSTS - 2.0 * rows).max(1.0)
+            ),
+            format!("{} ({posts:.0} posts)", p.posts.spacing_m),
+        ));
+    }
+    let slots = rows * (length / p.plants.spacing_m + 1.0);
+    if slots.is_nan() || slots > MAX_PLANTS {
+        return Err(ParamError::new(
+            "world.plants.spacing_m",
+            format!(
+                "a spacing giving at most {MAX_PLANTS} vines over world.rows.count = {} rows of \
+                 {length} m (MAX_PLANTS), i.e. at least {} m",
+                p.rows.count,
+                rows * length / (MAX_PLANTS - rows).max(1.0)
+            ),
+            format!("{} ({slots:.0} vines)", p.plants.spacing_m),
+        ));
+    }
+    let counts = [
+        (
+            "world.posts.wire_heights_m",
+            p.posts.wire_heights_m.len(),
+            MAX_WIRE_HEIGHTS,
+            "MAX_WIRE_HEIGHTS",
+            "wire heights",
+        ),
+        ("world.tags", p.tags.len(), MAX_TAGS, "MAX_TAGS", "tags"),
+        (
+            "world.occluders",
+            p.occluders.len(),
+            MAX_OCCLUDERS,
+            "MAX_OCCLUDERS",
+            "occluders",
+        ),
+    ];
+    for (path, n, max, name, what) in counts {
+        if n > max {
+            return Err(ParamError::new(
+                path,
+                format!("at most {max} {what} ({name})"),
+                format!("{n} {what}"),
+            ));
+        }
+    }
     Ok(())
 }
 
 fn validate_rows(p: &RowsParams, headlands: &HeadlandsParams) -> Result<(), ParamError> {
-    if p.count < 1 {
+    if p.count < 1 || p.count > MAX_ROWS {
         return Err(ParamError::new(
             "world.rows.count",
-            "at least 1 row",
+            format!("1 to {MAX_ROWS} rows (MAX_ROWS)"),
             p.count,
         ));
     }
     require_positive("world.rows.length_m", p.length_m)?;
+    require_at_most(
+        "world.rows.length_m",
+        p.length_m,
+        MAX_ROW_LENGTH_M,
+        "MAX_ROW_LENGTH_M",
+    )?;
     require_positive("world.rows.spacing_m", p.spacing_m)?;
+    require_at_most(
+        "world.rows.spacing_m",
+        p.spacing_m,
+        MAX_ROW_SPACING_M,
+        "MAX_ROW_SPACING_M",
+    )?;
     require_finite("world.rows.yaw_deg", p.yaw_deg)?;
     let k = require_finite("world.rows.curvature_per_m", p.curvature_per_m)?.abs();
     let footprint = f64::from(p.count) * p.spacing_m + headlands.width_m;

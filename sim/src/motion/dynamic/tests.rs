@@ -521,6 +521,161 @@ fn a_robot_driving_into_a_post_is_stuck_and_the_collision_recorded() {
         "progress {progress_m}"
     );
     assert!(at_s > 3.0 && at_s < 30.0, "{at_s}");
+    // The collision stays far inside the divergence bounds.
+    let max_accel = d
+        .samples
+        .iter()
+        .map(|s| s.acceleration_in_world.norm())
+        .fold(0.0, f64::max);
+    eprintln!("largest acceleration in the collision {max_accel:.1} m/s²");
+    assert!(max_accel < MAX_BODY_ACCEL_MPS2 / 10.0, "{max_accel}");
+}
+
+/// A backend that behaves until step `bad_step`, then returns `velocity` (a blow-up).
+struct Exploding {
+    pose: Isometry3<f64>,
+    steps: u64,
+    bad_step: u64,
+    velocity: Vector3<f64>,
+}
+
+impl Physics for Exploding {
+    fn step_s(&self) -> f64 {
+        1e-3
+    }
+    fn step(&mut self, _refs: &[f64; MAX_DRIVE_JOINTS]) {
+        self.steps += 1;
+    }
+    fn body(&self) -> crate::physics::BodyState {
+        let v = if self.steps >= self.bad_step {
+            self.velocity
+        } else {
+            Vector3::zeros()
+        };
+        crate::physics::BodyState {
+            world_from_body: self.pose,
+            velocity_in_world: v,
+            angular_velocity_in_world: Vector3::zeros(),
+        }
+    }
+    fn joints(&self) -> [crate::physics::JointState; MAX_DRIVE_JOINTS] {
+        Default::default()
+    }
+    fn take_collisions(&mut self, _out: &mut Vec<CollisionEvent>) {}
+    fn energy_j(&self) -> f64 {
+        0.0
+    }
+}
+
+#[test]
+fn a_diverging_backend_ends_the_run_with_physics_diverged() {
+    let w = small_world(2, 24.0, |_| {});
+    let route = build_route(&row_loop(0), &w.layout, &w.params.headlands).unwrap();
+    let r = RobotModel::builtin("tracked-sensorbox").unwrap();
+    for (velocity, needle) in [
+        (Vector3::new(1e40, 0.0, 0.0), "MAX_BODY_SPEED_MPS"),
+        (Vector3::new(f64::NAN, 0.0, 0.0), "not finite"),
+        (Vector3::new(0.0, 0.0, -30.0), "MAX_BODY_ACCEL_MPS2"),
+    ] {
+        let mut m = Dynamic::new(
+            &motion_params(),
+            &PhysicsParams::default(),
+            route.clone(),
+            &r,
+            &w.terrain,
+            G,
+            START,
+            |pose| {
+                Ok(Exploding {
+                    pose: *pose,
+                    steps: 0,
+                    bad_step: 2500,
+                    velocity,
+                })
+            },
+        )
+        .unwrap();
+        let d = drive_route(&mut m, &route);
+        let MotionOutcome::PhysicsDiverged { at_s, reason } = &d.outcome else {
+            panic!("not diverged: {:?}", d.outcome)
+        };
+        assert!((at_s - 2.5).abs() < 1e-9, "{at_s}");
+        assert!(reason.contains(needle), "{reason}");
+        assert!(d.outcome.is_failure());
+        // Nothing non-finite or huge reached the truth; the run ended right there.
+        let last = d.samples.last().unwrap();
+        assert!((last.stamp - START).as_secs_f64() <= 2.5 + 0.005);
+        for s in &d.samples {
+            assert!(
+                s.velocity_in_world.norm() < 1.0 && s.acceleration_in_world.norm() < 1e3,
+                "{s:?}"
+            );
+            assert!(
+                s.world_from_body
+                    .translation
+                    .vector
+                    .iter()
+                    .all(|c| c.is_finite())
+            );
+        }
+    }
+}
+
+#[test]
+fn a_12_tonne_chassis_tips_over() {
+    // The finding: a 12-tonne chassis (100 times the built-in's) on the built-in's
+    // ground contact springs flips over, and the run passed.
+    let text = crate::robot::BUILTIN_MODELS[0]
+        .2
+        .replacen(r#"<mass value="120.0"/>"#, r#"<mass value="12000"/>"#, 1)
+        .replacen(
+            r#"<inertia ixx="4.9" ixy="0" ixz="0" iyy="10.4" iyz="0" izz="12.1"/>"#,
+            r#"<inertia ixx="490" ixy="0" ixz="0" iyy="1040" iyz="0" izz="1210"/>"#,
+            1,
+        );
+    let r = RobotModel::from_urdf_str(&text, "heavy.urdf").unwrap();
+    assert!(r.inertia.mass_kg > 12_000.0);
+    let w = small_world(2, 24.0, |_| {});
+    let route = build_route(&row_loop(0), &w.layout, &w.params.headlands).unwrap();
+    let physics = PhysicsParams::default();
+    let motion = motion_params();
+    let (lo, hi) = w.terrain.domain();
+    let grid = HeightGrid::sample(&w.terrain, lo, hi, physics.heightfield_cell_m);
+    let obstacles = obstacles_of(&w);
+    let mut m = Dynamic::new(
+        &motion,
+        &physics,
+        route.clone(),
+        &r,
+        &w.terrain,
+        G,
+        START,
+        |pose| {
+            let scene = Scene {
+                surface: w.terrain.clone(),
+                obstacles: &obstacles,
+                ground: Some(&grid),
+            };
+            RapierPhysics::new(&r, scene, &physics, motion.step_hz, G, pose)
+        },
+    )
+    .unwrap();
+    let d = drive_route(&mut m, &route);
+    eprintln!("{:?}", d.outcome);
+    let MotionOutcome::TippedOver {
+        at_s,
+        tilted_at_s,
+        tilt_deg,
+    } = d.outcome
+    else {
+        panic!("did not tip over: {:?}", d.outcome)
+    };
+    assert!(tilt_deg > TIP_OVER_TILT_DEG);
+    assert!(
+        (at_s - tilted_at_s - TIP_OVER_HOLD_S).abs() < 2e-3,
+        "{at_s} {tilted_at_s}"
+    );
+    assert!(at_s < 30.0 && d.outcome.is_failure());
 }
 
 /// Both robots drive every route type on MuJoCo, through this small vineyard's tight

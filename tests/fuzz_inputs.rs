@@ -1,0 +1,334 @@
+//! Fuzz targets for the bench's text and data inputs: scenario files (parsed, then
+//! validated as `vinebench validate` does), sweep files, TUM trajectories, PLY clouds and
+//! meshes, OBJ meshes and bag-of-words vocabularies.
+//!
+//! Seeds are the real files (the shipped scenarios, sweeps and vocabulary, the mapper's
+//! exports, runs' TUM files) plus `tests/fuzz/corpus/<target>/` (every reproducer found).
+//! Mutations are structure-aware: a TOML leaf replaced by an extreme value (the shape of
+//! most real findings: a route to x = 1e9 m, a huge row count, a start time in 9999),
+//! byte flips, truncations, length-field lies. The property: no panic, no abort, no
+//! allocation beyond the bound of `common/fuzz.rs`, a named error or a usable result.
+//! `VINEBENCH_FUZZ_CASES` sets the cases per target (CI runs more).
+#![allow(clippy::unwrap_used)]
+
+#[path = "common/fuzz.rs"]
+mod fuzz;
+
+use fuzz::{Mutation, mutate, mutations, no_panic};
+use proptest::prelude::*;
+use std::path::{Path, PathBuf};
+use vinebench::scenario::LoadedScenario;
+
+#[global_allocator]
+static ALLOC: fuzz::LimitAlloc = fuzz::LimitAlloc;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn files_in(dir: &Path, ext: &str) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == ext))
+        .collect();
+    v.sort();
+    v.into_iter()
+        .map(|p| {
+            let b = std::fs::read(&p).unwrap();
+            (p, b)
+        })
+        .collect()
+}
+
+/// Scenario seeds: the shipped scenarios and the corpus. Camera scenarios build their
+/// renderer in `validate` (seconds each), so they are parsed but not validated.
+fn scenario_seeds() -> Vec<(PathBuf, Vec<u8>)> {
+    let mut v = files_in(&root().join("scenarios"), "toml");
+    v.extend(
+        files_in(&root().join("tests/data"), "toml")
+            .into_iter()
+            .filter(|(p, _)| !p.to_string_lossy().contains("sweep")),
+    );
+    v.extend(fuzz::corpus("scenario"));
+    v
+}
+
+fn has_cameras(text: &str) -> bool {
+    text.contains("[[sensors.cameras]]") || text.contains("[slam]") || text.contains("[mapper]")
+}
+
+/// Values that break assumptions: extremes, non-finite, wrong types, huge sizes.
+const EXTREMES: &[&str] = &[
+    "1e9",
+    "-1e9",
+    "1e308",
+    "-1",
+    "0",
+    "0.0",
+    "nan",
+    "inf",
+    "-inf",
+    "9223372036854775807",
+    "-9223372036854775808",
+    "4294967296",
+    "1000000",
+    "\"\"",
+    "\"9999-12-31T23:59:59Z\"",
+    "\"x\"",
+    "[]",
+    "[1e9, -1e9]",
+    "[[1e9, 0.0], [0.0, 1e9]]",
+    "{}",
+    "true",
+];
+
+/// Replaces the `k`-th leaf value (of all leaves, in document order) with `value`.
+fn set_leaf(doc: &mut toml_edit::DocumentMut, k: usize, value: &str) {
+    fn walk(item: &mut toml_edit::Item, k: &mut usize, value: &str) -> bool {
+        match item {
+            toml_edit::Item::Table(t) => {
+                for (_, it) in t.iter_mut() {
+                    if walk(it, k, value) {
+                        return true;
+                    }
+                }
+                false
+            }
+            toml_edit::Item::ArrayOfTables(a) => {
+                for t in a.iter_mut() {
+                    for (_, it) in t.iter_mut() {
+                        if walk(it, k, value) {
+                            return true;
+                        }
+                    }
+                }
+                false
+            }
+            toml_edit::Item::Value(v) => {
+                if *k == 0 {
+                    if let Ok(new) = value.parse::<toml_edit::Value>() {
+                        *v = new;
+                    }
+                    return true;
+                }
+                *k -= 1;
+                false
+            }
+            toml_edit::Item::None => false,
+        }
+    }
+    let mut k = k;
+    walk(doc.as_item_mut(), &mut k, value);
+}
+
+/// Every leaf count of a document (for choosing one).
+fn leaves(doc: &toml_edit::DocumentMut) -> usize {
+    fn count(item: &toml_edit::Item) -> usize {
+        match item {
+            toml_edit::Item::Table(t) => t.iter().map(|(_, i)| count(i)).sum(),
+            toml_edit::Item::ArrayOfTables(a) => a
+                .iter()
+                .map(|t| t.iter().map(|(_, i)| count(i)).sum::<usize>())
+                .sum(),
+            toml_edit::Item::Value(_) => 1,
+            toml_edit::Item::None => 0,
+        }
+    }
+    count(doc.as_item())
+}
+
+/// A scenario or sweep text with `edits` (leaf fraction, extreme value) applied.
+fn toml_mutant(seed: &[u8], edits: &[(f64, usize)], bytes: &[Mutation]) -> Vec<u8> {
+    let text = String::from_utf8_lossy(seed);
+    let out = match text.parse::<toml_edit::DocumentMut>() {
+        Ok(mut doc) => {
+            let n = leaves(&doc).max(1);
+            for (at, v) in edits {
+                set_leaf(
+                    &mut doc,
+                    ((n as f64 * at) as usize).min(n - 1),
+                    EXTREMES[*v],
+                );
+            }
+            doc.to_string().into_bytes()
+        }
+        Err(_) => seed.to_vec(),
+    };
+    mutate(&out, bytes)
+}
+
+/// How a scenario fared: refused by the parser, refused by `validate`, or usable.
+#[derive(Debug, PartialEq)]
+enum Fate {
+    NotText,
+    Refused,
+    Invalid,
+    Usable,
+    Parsed,
+}
+
+/// A scenario must give a named error or a usable scenario; `validate` builds everything
+/// (world, robot, route, sensors) and must do the same without unbounded memory.
+fn check_scenario(what: &str, bytes: &[u8]) -> Fate {
+    let Ok(text) = std::str::from_utf8(bytes) else {
+        return Fate::NotText; // the file reader refuses non-UTF-8 with a named error (fsio)
+    };
+    no_panic(what, || match LoadedScenario::from_str(text, "fuzz.toml") {
+        Err(e) => {
+            assert!(
+                e.to_string().starts_with("fuzz.toml"),
+                "{what}: unnamed error {e}"
+            );
+            Fate::Refused
+        }
+        Ok(_) if has_cameras(text) => Fate::Parsed,
+        Ok(sc) => match vinebench::runner::validate(&sc) {
+            Ok(()) => Fate::Usable,
+            Err(_) => Fate::Invalid,
+        },
+    })
+}
+
+#[test]
+fn scenario_corpus() {
+    for (p, b) in scenario_seeds() {
+        let fate = check_scenario(&p.display().to_string(), &b);
+        // The shipped scenarios are usable (so the mutants start from real, valid files);
+        // the corpus holds reproducers of findings, each now a named error.
+        let shipped = !p.starts_with(fuzz::corpus_dir("scenario"));
+        let expected = if !shipped {
+            vec![Fate::Refused, Fate::Invalid]
+        } else if has_cameras(&String::from_utf8_lossy(&b)) {
+            vec![Fate::Parsed]
+        } else if p.to_string_lossy().contains("mujoco") {
+            // Usable where the `mujoco` feature is built.
+            vec![Fate::Usable, Fate::Invalid]
+        } else {
+            vec![Fate::Usable]
+        };
+        assert!(expected.contains(&fate), "{}: {fate:?}", p.display());
+    }
+}
+
+proptest! {
+    #![proptest_config(fuzz::config())]
+
+    #[test]
+    fn scenario_mutants(
+        seed in any::<prop::sample::Index>(),
+        edits in prop::collection::vec((0.0..1.0f64, 0..EXTREMES.len()), 1..4),
+        bytes in prop::collection::vec(fuzz::mutation(), 0..2),
+    ) {
+        let seeds = scenario_seeds();
+        let (p, b) = seed.get(&seeds);
+        let m = toml_mutant(b, &edits, &bytes);
+        let _ = check_scenario(&format!("{} with {edits:?} {bytes:?}", p.display()), &m);
+    }
+
+    #[test]
+    fn sweep_mutants(
+        seed in any::<prop::sample::Index>(),
+        edits in prop::collection::vec((0.0..1.0f64, 0..EXTREMES.len()), 1..4),
+        bytes in prop::collection::vec(fuzz::mutation(), 0..2),
+    ) {
+        let mut seeds = files_in(&root().join("scenarios/sweeps"), "toml");
+        seeds.extend(files_in(&root().join("tests/data"), "toml"));
+        let (p, b) = seed.get(&seeds);
+        let m = toml_mutant(b, &edits, &bytes);
+        let what = format!("{} with {edits:?} {bytes:?}", p.display());
+        if let Ok(text) = std::str::from_utf8(&m) {
+            let base = p.parent().unwrap_or(Path::new("."));
+            no_panic(&what, || {
+                if let Ok(sw) = vinebench::sweep::spec::Sweep::from_str(text, "fuzz.toml", base) {
+                    // Job enumeration is what a bad axis or seed range would blow up.
+                    let _ = sw.jobs().len();
+                }
+            });
+        }
+    }
+
+    #[test]
+    fn tum_mutants(muts in mutations(4), lines in 1..50usize) {
+        let mut text = String::from("# t tx ty tz qx qy qz qw\n");
+        for i in 0..lines {
+            let t = 1.6e9 + i as f64 * 0.02;
+            text.push_str(&format!("{t:.6} {} 0.5 0 0 0 0.38268343 0.92387953\n", i as f64 * 0.1));
+        }
+        let m = mutate(text.as_bytes(), &muts);
+        if let Ok(s) = std::str::from_utf8(&m) {
+            no_panic(&format!("{muts:?}"), || {
+                let _ = vinebench::scoring::tum::parse_tum(s, Path::new("fuzz.tum"));
+            });
+        }
+    }
+
+    #[test]
+    fn vocabulary_mutants(muts in mutations(3), fix_checksum in any::<bool>()) {
+        let seed = std::fs::read(root().join("scenarios/vocabularies/vineyard.vbvoc")).unwrap();
+        let mut m = mutate(&seed, &muts);
+        if fix_checksum && m.len() > 14 {
+            // Past the checksum, into the structure checks: FNV-1a 64 of the body.
+            let n = m.len();
+            let h = m[6..n - 8].iter().fold(0xCBF2_9CE4_8422_2325u64, |h, &b| {
+                (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01B3)
+            });
+            m[n - 8..].copy_from_slice(&h.to_le_bytes());
+        }
+        no_panic(&format!("{muts:?}"), || {
+            let _ = vinebench_onboard::slam::bow::Vocabulary::from_bytes(&m);
+        });
+    }
+
+    #[test]
+    fn mesh_mutants(muts in mutations(3), kind in 0..3usize) {
+        let dir = tempfile::tempdir().unwrap();
+        let seeds = mesh_seeds();
+        let (name, seed) = &seeds[kind];
+        let p = dir.path().join(name);
+        std::fs::write(&p, mutate(seed, &muts)).unwrap();
+        no_panic(&format!("{name} with {muts:?}"), || {
+            use vinebench_onboard::mapper::{export, ply};
+            match kind {
+                0 => drop(ply::read_cloud(&p)),
+                1 => drop(ply::read_mesh(&p)),
+                _ => drop(export::read_obj(&p)),
+            }
+        });
+    }
+}
+
+/// A small real cloud and mesh, written by the mapper's own exporters.
+fn mesh_seeds() -> Vec<(String, Vec<u8>)> {
+    use vinebench_onboard::mapper::{PointCloud, TriangleMesh, export, ply};
+    let dir = tempfile::tempdir().unwrap();
+    let cloud = PointCloud {
+        positions: (0..20).map(|i| [i as f32 * 0.1, 0.5, 1.0]).collect(),
+        colors: vec![[10, 200, 30]; 20],
+        ..PointCloud::default()
+    };
+    let mesh = TriangleMesh {
+        vertices: vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [1.0, 1.0, 0.5],
+        ],
+        triangles: vec![[0, 1, 2], [1, 3, 2]],
+        colors: vec![[255, 0, 0]; 4],
+        ..TriangleMesh::default()
+    };
+    let (c, m, o) = (
+        dir.path().join("c.ply"),
+        dir.path().join("m.ply"),
+        dir.path().join("m.obj"),
+    );
+    ply::write_cloud(&cloud, &c).unwrap();
+    ply::write_mesh(&mesh, &m).unwrap();
+    export::write_obj(&mesh, &o).unwrap();
+    vec![
+        ("c.ply".into(), std::fs::read(c).unwrap()),
+        ("m.ply".into(), std::fs::read(m).unwrap()),
+        ("m.obj".into(), std::fs::read(o).unwrap()),
+    ]
+}
