@@ -19,6 +19,17 @@ fn vinebench() -> Command {
     Command::new(BIN)
 }
 
+/// `vinebench run SCENARIO --out OUT --quiet`.
+fn run_cmd(scenario: &Path, out: &Path) -> Command {
+    let mut c = vinebench();
+    c.arg("run")
+        .arg(scenario)
+        .arg("--out")
+        .arg(out)
+        .arg("--quiet");
+    c
+}
+
 fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     let p = dir.join(name);
     std::fs::write(&p, text).unwrap();
@@ -66,16 +77,7 @@ fn tum_lines(p: &Path) -> Vec<String> {
 fn full_run(dir: &Path) -> Vec<String> {
     let sc = write(dir, "long.toml", LONG);
     let out = dir.join("full");
-    let o = vinebench()
-        .args([
-            "run",
-            sc.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--quiet",
-        ])
-        .output()
-        .unwrap();
+    let o = run_cmd(&sc, &out).output().unwrap();
     assert!(matches!(o.status.code(), Some(0 | 1)), "{}", stderr(&o));
     tum_lines(&out.join("estimate_eif.tum"))
 }
@@ -151,17 +153,7 @@ fn sigint_and_sigterm_finalize_the_recording_and_replay_equals_the_live_run() {
         .enumerate()
     {
         let out = tmp.path().join(format!("cut-{k}"));
-        let mut child = vinebench()
-            .args([
-                "run",
-                sc.to_str().unwrap(),
-                "--out",
-                out.to_str().unwrap(),
-                "--quiet",
-            ])
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
+        let mut child = run_cmd(&sc, &out).stderr(Stdio::piped()).spawn().unwrap();
         let rec = out.join("recording.mcap");
         wait_for_file(&mut child, &rec, after_bytes);
         signal(&child, sig);
@@ -187,16 +179,7 @@ fn a_killed_run_replays_every_complete_chunk() {
     let full = full_run(tmp.path());
     let sc = write(tmp.path(), "long.toml", LONG);
     let out = tmp.path().join("killed");
-    let mut child = vinebench()
-        .args([
-            "run",
-            sc.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--quiet",
-        ])
-        .spawn()
-        .unwrap();
+    let mut child = run_cmd(&sc, &out).spawn().unwrap();
     let rec = out.join("recording.mcap");
     wait_for_file(&mut child, &rec, 400_000);
     signal(&child, "KILL");
@@ -286,16 +269,7 @@ fn a_read_only_folder_is_an_error_naming_it() {
     } else {
         ro.join("run")
     };
-    let o = vinebench()
-        .args([
-            "run",
-            sc.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--quiet",
-        ])
-        .output()
-        .unwrap();
+    let o = run_cmd(&sc, &out).output().unwrap();
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(
@@ -318,19 +292,7 @@ fn two_runs_racing_for_one_folder_one_wins_and_its_recording_is_whole() {
         "name = \"race\"\nmax_duration_s = 30.0\n[motion]\nmodel = \"kinematic\"\n",
     );
     let out = tmp.path().join("shared");
-    let spawn = || {
-        vinebench()
-            .args([
-                "run",
-                sc.to_str().unwrap(),
-                "--out",
-                out.to_str().unwrap(),
-                "--quiet",
-            ])
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap()
-    };
+    let spawn = || run_cmd(&sc, &out).stderr(Stdio::piped()).spawn().unwrap();
     let (a, b) = (spawn(), spawn());
     let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
     let codes = [a.status.code(), b.status.code()];
@@ -349,16 +311,7 @@ fn two_runs_racing_for_one_folder_one_wins_and_its_recording_is_whole() {
     assert!(!stderr(&r).contains("damaged"), "{}", stderr(&r));
     assert_eq!(lines, tum_lines(&out.join("estimate_eif.tum")));
     // Running again into the used folder is refused, then replaced on request.
-    let again = vinebench()
-        .args([
-            "run",
-            sc.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--quiet",
-        ])
-        .output()
-        .unwrap();
+    let again = run_cmd(&sc, &out).output().unwrap();
     assert_eq!(again.status.code(), Some(2));
     assert!(stderr(&again).contains("--replace"), "{}", stderr(&again));
 }
