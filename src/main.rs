@@ -143,9 +143,14 @@ enum Command {
         /// Topic-mapping file (TOML) for recordings not made by vinebench.
         #[arg(long, value_name = "TOML")]
         config: Option<PathBuf>,
-        /// Output folder (default: runs/replay-<name>-<UTC stamp>/).
+        /// Output folder (default: runs/replay-<name>-<UTC stamp>/, made unique). It must
+        /// be new or empty, and is locked while the replay writes it.
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
+        /// Reuse a non-empty --out: clear a previous run's files there first (other files
+        /// are kept).
+        #[arg(long, requires = "out")]
+        replace: bool,
     },
     /// Score a TUM trajectory against a reference, like evo_ape / evo_rpe.
     #[command(after_help = "Example:\n  \
@@ -419,11 +424,13 @@ fn dispatch(cmd: Command) -> Result<u8> {
             recording,
             config,
             out,
+            replace,
         } => {
             let opts = vinebench::replay::ReplayOptions {
                 config,
                 out_dir: out,
                 runs_root: PathBuf::from("runs"),
+                replace,
             };
             let o = vinebench::replay::replay(&recording, &opts)?;
             let r = &o.report;

@@ -64,6 +64,9 @@ pub enum ReplayError {
         /// The I/O error.
         source: std::io::Error,
     },
+    /// The output folder is in use, not empty or cannot be made.
+    #[error(transparent)]
+    Folder(crate::runner::RunError),
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ReplayError + '_ {
@@ -199,6 +202,9 @@ pub struct ReplayOptions {
     pub out_dir: Option<PathBuf>,
     /// Parent of default output folders.
     pub runs_root: PathBuf,
+    /// An `out_dir` that already holds files is cleared of a run's outputs (else refused);
+    /// see [`crate::runner::RunFolder`].
+    pub replace: bool,
 }
 
 /// One estimate source of a replay.
@@ -1127,13 +1133,16 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
 
     // Outputs.
     let name = safe_name(&s.name);
-    let dir = match &opts.out_dir {
-        Some(d) => d.clone(),
-        None => opts
-            .runs_root
-            .join(format!("replay-{name}-{}", crate::runner::utc_stamp())),
-    };
-    std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+    // The folder is this replay's until it returns, as a run's (see `RunFolder`).
+    let folder = crate::runner::RunFolder::claim(
+        opts.out_dir.as_deref(),
+        &opts.runs_root,
+        &format!("replay-{name}"),
+        &crate::runner::utc_stamp(),
+        opts.replace,
+    )
+    .map_err(ReplayError::Folder)?;
+    let dir = folder.path().to_path_buf();
     if let Some(m) = &mapping {
         crate::runner::mapping::export(&dir, m).map_err(|e| ReplayError::Io {
             path: dir
@@ -1177,7 +1186,8 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         let named: Vec<(&str, &scoring::loops::LoopScore)> =
             slam.iter().map(|o| o.source).zip(&loop_scores).collect();
         let p = dir.join("loops.csv");
-        std::fs::write(&p, scoring::loops::loops_csv(&named, t0)).map_err(io_err(&p))?;
+        crate::fsio::write_atomic(&p, scoring::loops::loops_csv(&named, t0).as_bytes())
+            .map_err(io_err(&p))?;
     }
     let slam_metrics = |name: &str| -> BTreeMap<String, f64> {
         let Some((o, l)) = slam
@@ -1303,7 +1313,7 @@ fn write_report(
     let jp = dir.join("report.json");
     let json =
         serde_json::to_string_pretty(report).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"));
-    std::fs::write(&jp, json + "\n").map_err(io_err(&jp))?;
+    crate::fsio::write_atomic(&jp, (json + "\n").as_bytes()).map_err(io_err(&jp))?;
     let mut md = String::new();
     let _ = writeln!(md, "# vinebench replay: {}\n", report.name);
     let _ = writeln!(md, "Recording: `{}`", report.recording);
@@ -1395,7 +1405,7 @@ fn write_report(
         }
     }
     let mp = dir.join("report.md");
-    std::fs::write(&mp, md).map_err(io_err(&mp))
+    crate::fsio::write_atomic(&mp, md.as_bytes()).map_err(io_err(&mp))
 }
 
 #[cfg(test)]

@@ -314,6 +314,28 @@ fn two_runs_racing_for_one_folder_one_wins_and_its_recording_is_whole() {
     let again = run_cmd(&sc, &out).output().unwrap();
     assert_eq!(again.status.code(), Some(2));
     assert!(stderr(&again).contains("--replace"), "{}", stderr(&again));
+    // A replay's folder is owned the same way.
+    let rec = out.join("recording.mcap");
+    let dest = tmp.path().join("replay");
+    let o = vinebench()
+        .arg("replay")
+        .arg(&rec)
+        .arg("--out")
+        .arg(&dest)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("not empty"), "{}", stderr(&o));
+    let o = vinebench()
+        .arg("replay")
+        .arg(&rec)
+        .arg("--out")
+        .arg(&dest)
+        .arg("--replace")
+        .output()
+        .unwrap();
+    assert!(matches!(o.status.code(), Some(0 | 1)), "{}", stderr(&o));
+    assert_eq!(lines, tum_lines(&dest.join("estimate_eif.tum")));
 }
 
 #[test]

@@ -132,6 +132,7 @@ fn check_replay(what: &str, bytes: &[u8], config: Option<&Path>) {
                 config: config.map(Path::to_path_buf),
                 out_dir: Some(out.clone()),
                 runs_root: tmp.path().to_path_buf(),
+                replace: false,
             },
         )
     });
