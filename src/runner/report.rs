@@ -4,7 +4,7 @@
 //! timing goes to `timing.json` instead, so two runs of a scenario give byte-identical
 //! reports.
 
-use super::outcome::{RobotReport, RunError, Simulation, io_err};
+use super::outcome::{RobotReport, RunError, Simulation};
 use crate::scenario::LoadedScenario;
 use crate::scoring::expect::{ExpectationResult, ROBOT_METRICS, ROBOT_SOURCE};
 use crate::scoring::{self, ScoringParams, SourceScore, metrics};
@@ -601,7 +601,7 @@ pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunErr
     let jp = dir.join("report.json");
     let json =
         serde_json::to_string_pretty(report).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"));
-    crate::fsio::write_atomic(&jp, (json + "\n").as_bytes()).map_err(io_err(&jp))?;
+    super::write_file(&jp, (json + "\n").as_bytes())?;
 
     let t0 = sim
         .truth
@@ -659,7 +659,7 @@ pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunErr
         }
     }
     let mp = dir.join("report.md");
-    crate::fsio::write_atomic(&mp, md.as_bytes()).map_err(io_err(&mp))
+    super::write_file(&mp, md.as_bytes())
 }
 
 /// What a run is judged on: the scores of the estimate sources and the robot's own run.
