@@ -90,8 +90,10 @@ enum Command {
         vinebench check scenarios/\n  \
         vinebench check scenarios/row-loop-rtk.toml scenarios/poor-gnss.toml --runs /tmp/ci-runs\n  \
         vinebench check scenarios/ --shard 1/3      # jobs 1/3, 2/3, 3/3 together cover all\n\n\
-        Folders contribute their *.toml files except defaults.toml. Exit code: 2 if any \
-        scenario has bad input, else 1 if any expectation fails, else 0.")]
+        Folders contribute their *.toml files except defaults.toml. Each run gets its own \
+        folder under --runs (scenarios sharing a name too). Exit code: 2 if any \
+        scenario has bad input, else 1 if any expectation fails, else 0; a shard with \
+        nothing to do (more shards than scenarios) is 0.")]
     Check {
         /// Scenario files or folders.
         #[arg(required = true)]
