@@ -5,12 +5,12 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// The largest text input vinebench reads whole (scenario, sweep, topic mapping, URDF):
-/// 16 MiB, hundreds of times the largest real one.
-pub const MAX_TEXT_INPUT_BYTES: u64 = 16 << 20;
+/// The largest scenario file vinebench reads: 16 MiB, hundreds of times the largest real
+/// one (sweep files and topic mappings have their own, smaller bounds).
+pub const MAX_SCENARIO_BYTES: u64 = 16 << 20;
 
-/// The largest data file read whole (TUM trajectories, meshes, vocabularies): 2 GiB.
-pub const MAX_DATA_INPUT_BYTES: u64 = 2 << 30;
+/// The largest TUM trajectory file read whole: 2 GiB.
+pub const MAX_TUM_BYTES: u64 = 2 << 30;
 
 /// Reads a whole file of at most `limit` bytes; a longer one (or an endless one, such as
 /// `/dev/zero`) is an [`std::io::ErrorKind::FileTooLarge`] error saying the limit, read

@@ -139,27 +139,21 @@ impl ReplayConfig {
     /// Reads a mapping file (at most [`MAX_MAPPING_BYTES`]); errors name the file, the key
     /// and what was expected.
     pub fn load(path: &Path) -> Result<ReplayConfig, ReplayError> {
-        use std::io::Read as _;
         let file = path.display().to_string();
-        let mut bytes = Vec::new();
-        std::fs::File::open(path)
-            .and_then(|f| f.take(MAX_MAPPING_BYTES + 1).read_to_end(&mut bytes))
-            .map_err(io_err(path))?;
-        if bytes.len() as u64 > MAX_MAPPING_BYTES {
-            return Err(ReplayError::Input {
-                file,
-                problem: format!(
-                    "larger than {MAX_MAPPING_BYTES} bytes: expected a topic-mapping TOML file \
-                     (see docs/field-topics.example.toml)"
-                ),
-            });
-        }
-        let text = String::from_utf8(bytes).map_err(|e| ReplayError::Input {
-            file: file.clone(),
-            problem: format!(
-                "not UTF-8 text (byte {}): expected a topic-mapping TOML file",
-                e.utf8_error().valid_up_to()
-            ),
+        let text = crate::fsio::read_text_bounded(path, MAX_MAPPING_BYTES).map_err(|e| {
+            match e.kind() {
+                // Too large or not text: the file is there but is no mapping file.
+                std::io::ErrorKind::FileTooLarge | std::io::ErrorKind::InvalidData => {
+                    ReplayError::Input {
+                        file: file.clone(),
+                        problem: format!(
+                            "{e}: expected a topic-mapping TOML file \
+                             (see docs/field-topics.example.toml)"
+                        ),
+                    }
+                }
+                _ => io_err(path)(e),
+            }
         })?;
         ReplayConfig::from_str(&text, &file)
     }

@@ -187,11 +187,12 @@ impl LoadedScenario {
     /// Reads a scenario file with some keys set from outside it (see [`Override`]).
     pub fn load_with(path: &Path, overrides: &[Override]) -> Result<LoadedScenario, ScenarioError> {
         let file = path.display().to_string();
-        let text = crate::fsio::read_text_bounded(path, crate::fsio::MAX_TEXT_INPUT_BYTES)
-            .map_err(|source| ScenarioError::Io {
+        let text = crate::fsio::read_text_bounded(path, crate::fsio::MAX_SCENARIO_BYTES).map_err(
+            |source| ScenarioError::Io {
                 file: file.clone(),
                 source,
-            })?;
+            },
+        )?;
         let mut s = LoadedScenario::from_str_with(&text, &file, overrides)?;
         s.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         Ok(s)

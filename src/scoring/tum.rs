@@ -190,12 +190,13 @@ pub fn write_tum(path: impl AsRef<Path>, traj: &Trajectory) -> io::Result<()> {
 /// Reads a TUM file (see the [module docs](self) for what is accepted).
 pub fn read_tum(path: impl AsRef<Path>) -> Result<Trajectory, TumError> {
     let path = path.as_ref();
-    let text = crate::fsio::read_text_bounded(path, crate::fsio::MAX_DATA_INPUT_BYTES).map_err(
-        |source| TumError::Io {
-            path: path.to_path_buf(),
-            source,
-        },
-    )?;
+    let text =
+        crate::fsio::read_text_bounded(path, crate::fsio::MAX_TUM_BYTES).map_err(|source| {
+            TumError::Io {
+                path: path.to_path_buf(),
+                source,
+            }
+        })?;
     parse_tum(&text, path)
 }
 
