@@ -12,6 +12,34 @@ pub const MAX_SCENARIO_BYTES: u64 = 16 << 20;
 /// The largest TUM trajectory file read whole: 2 GiB.
 pub const MAX_TUM_BYTES: u64 = 2 << 30;
 
+/// The largest world mesh (PLY or OBJ) read: 2 GiB.
+pub const MAX_MESH_BYTES: u64 = 2 << 30;
+
+/// Checks that `path` is a regular file of at most `limit` bytes, for inputs that a
+/// parser streams rather than reading whole (meshes): a device such as `/dev/zero`, a
+/// pipe or a folder is refused ([`std::io::ErrorKind::InvalidInput`]), a larger file is
+/// [`std::io::ErrorKind::FileTooLarge`] saying the limit.
+pub fn check_input_file(path: &Path, limit: u64) -> std::io::Result<()> {
+    let m = std::fs::metadata(path)?;
+    if !m.is_file() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "expected a regular file, found a folder, device or pipe",
+        ));
+    }
+    if m.len() > limit {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::FileTooLarge,
+            format!(
+                "the file is {} bytes, larger than {}",
+                m.len(),
+                human_bytes(limit)
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Reads a whole file of at most `limit` bytes; a longer one (or an endless one, such as
 /// `/dev/zero`) is an [`std::io::ErrorKind::FileTooLarge`] error saying the limit, read
 /// without holding more than `limit + 1` bytes.
@@ -73,6 +101,16 @@ pub fn human_bytes(n: u64) -> String {
 /// the file is either the old one or the complete new one, also after a crash or a full
 /// disk. The parent folder is created.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    write_atomic_with(path, |w| w.write_all(bytes))
+}
+
+/// [`write_atomic`] for content produced by `write` as a stream (through a buffer), so a
+/// large file (a long run's ground truth) is never whole in memory. An error of `write`
+/// leaves the old file, or none.
+pub fn write_atomic_with(
+    path: &Path,
+    write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+) -> std::io::Result<()> {
     let name = path.file_name().ok_or_else(|| {
         std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
@@ -96,8 +134,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     ));
     let tmp = parent.join(tmp_name);
     let written = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
+        let mut f = std::io::BufWriter::with_capacity(1 << 16, std::fs::File::create(&tmp)?);
+        write(&mut f)?;
+        let f = f.into_inner().map_err(|e| e.into_error())?;
         f.sync_all()?;
         std::fs::rename(&tmp, path)
     })();
@@ -139,6 +178,14 @@ mod tests {
         assert!(e.to_string().contains("larger than 1 MiB"), "{e}");
         let e = read_text_bounded(dir.path(), 100).unwrap_err();
         assert!(e.to_string().contains("found a folder"), "{e}");
+        // Streamed inputs: regular files up to the limit only.
+        check_input_file(&p, 6).unwrap();
+        let e = check_input_file(&p, 5).unwrap_err();
+        assert!(e.to_string().contains("larger than 5 bytes"), "{e}");
+        for odd in [Path::new("/dev/zero"), dir.path()] {
+            let e = check_input_file(odd, 1 << 30).unwrap_err();
+            assert!(e.to_string().contains("expected a regular file"), "{e}");
+        }
         std::fs::write(&p, b"ok\xff").unwrap();
         let e = read_text_bounded(&p, 100).unwrap_err();
         assert!(e.to_string().contains("offset 2"), "{e}");

@@ -24,7 +24,7 @@ use crate::recording::ros::{self, TransformStamped};
 use crate::recording::{self, RecordingError, topics};
 use crate::scenario::{LoadedScenario, ScenarioError};
 use crate::scoring::expect::ExpectationResult;
-use crate::scoring::{self, SourceScore, metrics};
+use crate::scoring::{self, PoseSpool, Poses, SourceScore, SpoolWriter, metrics};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap, VecDeque};
@@ -336,8 +336,10 @@ enum Decoded {
 /// sensor messages and feeds them on, so memory does not grow with the recording.
 #[derive(Default)]
 struct Collected {
-    /// Transforms and ground truth (first scan).
+    /// Transforms (first scan).
     entries: Vec<Decoded>,
+    /// Ground truth (first scan), on its way to disk.
+    truth: TruthSpool,
     /// The first GNSS fix with a position (first scan): the default map origin.
     first_fix: Option<Geodetic>,
     /// Sensor messages of a mapped topic with a supported type (first scan).
@@ -346,6 +348,70 @@ struct Collected {
     skipped: BTreeMap<String, u64>,
     decode_errors: BTreeMap<String, (u64, String)>,
     wrong_type: Vec<String>,
+}
+
+/// A recording's ground truth on its way to a spool (in the system's temporary folder:
+/// the replay's folder is claimed only once the recording has been read), so memory does
+/// not grow with the recording. Samples in stamp order (a vinebench recording's) go
+/// straight to disk; one that is not after the last is set aside and merged at the end
+/// as a stable sort by stamp that keeps the first recorded of equal stamps.
+#[derive(Default)]
+struct TruthSpool {
+    writer: Option<SpoolWriter>,
+    stragglers: Vec<PoseSample>,
+    error: Option<std::io::Error>,
+}
+
+impl TruthSpool {
+    fn push(&mut self, s: PoseSample) {
+        if self.error.is_some() {
+            return;
+        }
+        let w = match &mut self.writer {
+            Some(w) => w,
+            None => match SpoolWriter::create(None, "ground-truth") {
+                Ok(w) => self.writer.insert(w),
+                Err(e) => {
+                    self.error = Some(e);
+                    return;
+                }
+            },
+        };
+        match w.push(&s) {
+            Ok(true) => {}
+            Ok(false) => self.stragglers.push(s),
+            Err(e) => self.error = Some(e),
+        }
+    }
+
+    fn finish(self) -> std::io::Result<PoseSpool> {
+        if let Some(e) = self.error {
+            return Err(e);
+        }
+        let spool = match self.writer {
+            Some(w) => w.finish()?,
+            None => SpoolWriter::create(None, "ground-truth")?.finish()?,
+        };
+        if self.stragglers.is_empty() {
+            return Ok(spool);
+        }
+        let mut all = spool.to_trajectory()?.samples;
+        all.extend(self.stragglers);
+        all.sort_by_key(|s| s.stamp);
+        all.dedup_by_key(|s| s.stamp);
+        PoseSpool::from_trajectory(None, "ground-truth", &Trajectory { samples: all })
+    }
+}
+
+/// Messages fed between two moves of the estimates to their spools.
+const DRAIN_EVERY_MESSAGES: u64 = 256;
+
+/// [`ReplayError::Io`] of a spool in the system's temporary folder.
+fn spool_err(label: &str) -> impl FnOnce(std::io::Error) -> ReplayError + '_ {
+    move |source| ReplayError::Io {
+        path: format!("{label} spool in {}", std::env::temp_dir().display()),
+        source,
+    }
 }
 
 fn bump(map: &mut BTreeMap<String, u64>, key: &str) {
@@ -465,6 +531,10 @@ fn collect(
         Ok(Decoded::Sensor(msg)) => {
             bump(&mut out.replayed, &ch.topic);
             Some(msg)
+        }
+        Ok(Decoded::Truth(sample)) => {
+            out.truth.push(sample);
+            None
         }
         Ok(msg) => {
             out.entries.push(msg);
@@ -920,7 +990,6 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     // Static transforms.
     let body = cfg.body_frame.as_deref().unwrap_or(names::BASE_LINK);
     let mut tf: Vec<TransformStamped> = Vec::new();
-    let mut truth = Trajectory::new();
     for e in std::mem::take(&mut got.entries) {
         match e {
             Decoded::Tf(mut ts) => {
@@ -930,8 +999,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
                 }
                 tf.extend(ts);
             }
-            Decoded::Truth(s) => truth.samples.push(s),
-            Decoded::Sensor(_) => {}
+            Decoded::Truth(_) | Decoded::Sensor(_) => {}
         }
     }
     if tf.is_empty() {
@@ -963,8 +1031,9 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             ),
         });
     }
-    truth.samples.sort_by_key(|s| s.stamp);
-    truth.samples.dedup_by_key(|s| s.stamp);
+    let truth = std::mem::take(&mut got.truth)
+        .finish()
+        .map_err(spool_err("ground-truth"))?;
 
     let s = &sc.scenario;
     // The visual SLAM of a vinebench recording's `[slam]` (it needs the image topics).
@@ -1037,6 +1106,13 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
                 problem: e.to_string(),
             },
         )?;
+    // The estimates go to disk as they are produced (a mapper reads them as they grow:
+    // then they stay in memory).
+    let mut spools =
+        crate::runner::EstimateSpools::new(None, &estimators).map_err(spool_err("estimate"))?;
+    let drain = mapping.is_none();
+    let mut fed: u64 = 0;
+    let mut spool_error: Option<std::io::Error> = None;
     // Second scan: sensor messages in arrival (publish-time) order, ties in the recorded
     // (delivery) order, straight into the estimators.
     let mut order = PublishOrder::new();
@@ -1051,6 +1127,14 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         }
         let tm = TimedMessage { arrival, msg };
         estimators.push(&tm);
+        fed += 1;
+        if drain
+            && fed.is_multiple_of(DRAIN_EVERY_MESSAGES)
+            && spool_error.is_none()
+            && let Err(e) = spools.drain(&mut estimators)
+        {
+            spool_error = Some(e);
+        }
         // After the estimators, as in a live run: the mappers integrate what the
         // estimates now cover.
         if map_error.is_none()
@@ -1067,6 +1151,9 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         }
     })?;
     order.finish(&mut feed);
+    if let Some(e) = spool_error {
+        return Err(spool_err("estimate")(e));
+    }
     if let Some(e) = slam_error {
         return Err(ReplayError::Input {
             file: file_name,
@@ -1124,6 +1211,9 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         .as_ref()
         .map(crate::runner::mapping::score)
         .unwrap_or_default();
+    let estimates = spools
+        .finish(std::mem::take(&mut out.estimators))
+        .map_err(spool_err("estimate"))?;
 
     // Outputs.
     let name = safe_name(&s.name);
@@ -1146,9 +1236,9 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             source: std::io::Error::other(e.to_string()),
         })?;
     }
-    for e in &out.estimators {
+    for e in &estimates {
         let p = dir.join(format!("estimate_{}.tum", e.name));
-        scoring::tum::write_tum(&p, &e.trajectory).map_err(io_err(&p))?;
+        scoring::tum::write_tum(&p, &e.poses).map_err(io_err(&p))?;
     }
     let have_truth = !truth.is_empty();
     if have_truth {
@@ -1171,12 +1261,20 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     };
     // The SLAM's loops against the recorded truth (`loops.csv`, as a live run writes).
     let th = s.scoring.loop_thresholds();
+    // Loop scoring looks the truth up at the loops' stamps: with a SLAM (which holds its
+    // keyframes in memory anyway) the truth is read into memory for it.
+    let truth_in_memory = if slam.is_empty() {
+        Trajectory::new()
+    } else {
+        truth.to_trajectory().map_err(spool_err("ground-truth"))?
+    };
     let loop_scores: Vec<scoring::loops::LoopScore> = slam
         .iter()
-        .map(|o| scoring::loops::score_loops(&o.loops, &truth, &th))
+        .map(|o| scoring::loops::score_loops(&o.loops, &truth_in_memory, &th))
         .collect();
+    drop(truth_in_memory);
     if !slam.is_empty() && have_truth {
-        let t0 = truth.samples.first().map_or(Nanos(0), |s| s.stamp);
+        let t0 = truth.first().map_or(Nanos(0), |s| s.0);
         let named: Vec<(&str, &scoring::loops::LoopScore)> =
             slam.iter().map(|o| o.source).zip(&loop_scores).collect();
         let p = dir.join("loops.csv");
@@ -1199,20 +1297,30 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             })
             .collect()
     };
-    let sources: Vec<ReplaySource> = out
-        .estimators
+    let sources: Vec<ReplaySource> = estimates
         .iter()
         .map(|e| ReplaySource {
             slam: slam_metrics(e.name),
             name: e.name.to_string(),
-            poses: e.trajectory.len(),
-            score: have_truth
-                .then(|| scoring::score_source(&truth, &e.trajectory, &s.scoring, &fault_windows)),
+            poses: e.poses.len(),
+            score: have_truth.then(|| {
+                let mut score = scoring::score_source(&truth, &e.poses, &s.scoring, &fault_windows);
+                // Only what an error plot would draw is kept (millions of poses otherwise).
+                score.ate_errors =
+                    scoring::plots::thin_errors(std::mem::take(&mut score.ate_errors));
+                score
+            }),
             used: e.stats.used.clone(),
             rejected: e.stats.rejected.clone(),
             notes: e.stats.notes.clone(),
         })
         .collect();
+    // A score from part of a trajectory (a spool that could not be read back) is never
+    // reported.
+    truth.check().map_err(spool_err("ground-truth"))?;
+    for e in &estimates {
+        e.poses.check().map_err(spool_err("estimate"))?;
+    }
     let robot: BTreeMap<String, f64> = summary
         .metadata
         .get(recording::META_RUN)
@@ -1294,15 +1402,15 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         nothing_usable,
         passed,
     };
-    write_report(&dir, &report, &truth, &out.estimators)?;
+    write_report(&dir, &report, &truth, &estimates)?;
     Ok(ReplayOutcome { dir, report })
 }
 
 fn write_report(
     dir: &Path,
     report: &ReplayReport,
-    truth: &Trajectory,
-    estimates: &[vinebench_onboard::estimator::EstimatorOutput],
+    truth: &dyn scoring::Poses,
+    estimates: &[crate::runner::Estimate],
 ) -> Result<(), ReplayError> {
     let jp = dir.join("report.json");
     let json =
@@ -1387,8 +1495,10 @@ fn write_report(
         }
     }
     if !truth.is_empty() {
-        let named: Vec<(&str, &Trajectory)> =
-            estimates.iter().map(|e| (e.name, &e.trajectory)).collect();
+        let named: Vec<(&str, &dyn scoring::Poses)> = estimates
+            .iter()
+            .map(|e| (e.name, &e.poses as &dyn scoring::Poses))
+            .collect();
         match scoring::plots::plot_trajectories_svg(dir.join("trajectories.svg"), truth, &named) {
             Ok(()) => {
                 let _ = writeln!(md, "\n![trajectories](trajectories.svg)");

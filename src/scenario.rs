@@ -71,6 +71,8 @@ pub struct Scenario {
     pub faults: FaultsParams,
     /// `[estimators]`.
     pub estimators: EstimatorsParams,
+    /// `[control]`: what the route follower steers on (closed loop).
+    pub control: ControlParams,
     /// `[scoring]`.
     pub scoring: ScoringParams,
     /// `[recording]`.
@@ -373,6 +375,62 @@ impl LoadedScenario {
                     s.name
                 ),
             ));
+        }
+        let c = &s.control;
+        if let Some(src) = c.source()
+            && !s.estimators.run.iter().any(|k| k.name() == src)
+        {
+            let runs: Vec<&str> = s.estimators.run.iter().map(|k| k.name()).collect();
+            return Err(self.field_error(
+                "control.localization",
+                format!(
+                    "\"truth\" or an estimate source of [estimators] run ({runs:?}), found {src:?}{}",
+                    if src.starts_with("slam") {
+                        " (SLAM sources cannot steer yet: only the estimators' sources can)"
+                    } else {
+                        ""
+                    }
+                ),
+            ));
+        }
+        for (key, v, lo, hi) in [
+            (
+                "control.estimate_latency_ms",
+                c.estimate_latency_ms,
+                0.0,
+                10_000.0,
+            ),
+            (
+                "control.max_estimate_age_ms",
+                c.max_estimate_age_ms,
+                1.0,
+                3_600_000.0,
+            ),
+            (
+                "control.max_position_sigma_m",
+                c.max_position_sigma_m,
+                0.0,
+                1e6,
+            ),
+            (
+                "control.estimate_offset_m[0]",
+                c.estimate_offset_m[0],
+                -100.0,
+                100.0,
+            ),
+            (
+                "control.estimate_offset_m[1]",
+                c.estimate_offset_m[1],
+                -100.0,
+                100.0,
+            ),
+        ] {
+            if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                return Err(self.field_error(
+                    key,
+                    format!("expected a number from {lo} to {hi}, found {v}"),
+                ));
+            }
         }
         let e = &s.estimators;
         if !(e.reorder_window_ms.is_finite() && e.reorder_window_ms >= 0.0) {
@@ -697,6 +755,31 @@ pub struct MappingParams {
     pub map: vinebench_onboard::mapper::MapperParams,
     /// `[mapper.scoring]`: how each map is scored.
     pub scoring: crate::scoring::map::MapScoreParams,
+}
+
+/// `[control]` of a scenario (documented in `scenarios/defaults.toml`; see
+/// [`crate::runner::steering`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlParams {
+    /// `"truth"` or an estimate source of `[estimators] run`.
+    pub localization: String,
+    /// Processing time between a message's arrival and the pose it gives, ms.
+    pub estimate_latency_ms: f64,
+    /// Stop when the newest estimate is older than this, ms.
+    pub max_estimate_age_ms: f64,
+    /// Stop when the estimate's horizontal position σ exceeds this, m (0 = off).
+    pub max_position_sigma_m: f64,
+    /// A known error (east, north) added to every steering estimate, m: what a biased
+    /// localization (a wrong antenna lever arm, a shifted base station) does to the vines.
+    pub estimate_offset_m: [f64; 2],
+}
+
+impl ControlParams {
+    /// The steering source (`None` for `"truth"`).
+    pub fn source(&self) -> Option<&str> {
+        (self.localization != "truth").then_some(self.localization.as_str())
+    }
 }
 
 impl Default for MappingParams {

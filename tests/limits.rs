@@ -184,6 +184,23 @@ fn world_sizes_name_their_key() {
 }
 
 #[test]
+fn a_world_mesh_must_be_a_regular_file_within_its_bound() {
+    // The mesh parsers stream their file: `/dev/zero` behind a `.ply` name would never
+    // end; it is refused before reading, naming the key.
+    let dir = tempfile::tempdir().unwrap();
+    let zero = dir.path().join("zero.ply");
+    std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+    let err = validate_error(&format!(
+        "[world.mesh]\nfile = {:?}\n",
+        zero.display().to_string()
+    ));
+    assert!(
+        err.contains("world.mesh.file") && err.contains("expected a regular file"),
+        "{err}"
+    );
+}
+
+#[test]
 fn heightfield_and_render_grids_are_bounded() {
     // Rows of 3 km at 5 cm: 86 M heights.
     let big = "[world.rows]\nlength_m = 3000.0\nyaw_deg = 0.0\n";
@@ -281,7 +298,7 @@ fn a_robot_that_tips_over_fails_its_run() {
     .expect("write");
     let sc = LoadedScenario::load(&scenario).unwrap_or_else(|e| panic!("{e}"));
     let sim = vinebench::runner::simulate(&sc, None).unwrap_or_else(|e| panic!("{e}"));
-    let scores = vinebench::runner::score(&sc, &sim);
+    let scores = vinebench::runner::score(&sc, &sim).unwrap();
     let outcome = &scores.robot.outcome;
     assert_eq!(outcome.kind(), "tipped_over", "{outcome}");
     assert!(!sim.route_completed);

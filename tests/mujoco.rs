@@ -25,7 +25,7 @@ fn slope_row_on_mujoco_meets_its_expectations_and_follows_rapier() {
     let sc = load("slope-row-mujoco.toml");
     let sim = simulate(&sc, None).unwrap_or_else(|e| panic!("{e}"));
     assert!(sim.route_completed, "the route was not completed");
-    let failed: Vec<String> = evaluate(&sc, &score(&sc, &sim))
+    let failed: Vec<String> = evaluate(&sc, &score(&sc, &sim).unwrap())
         .iter()
         .filter(|r| !r.holds)
         .map(|r| r.to_string())

@@ -74,7 +74,8 @@ fn monte_carlo(scenario: &str) -> Vec<(f64, f64)> {
             .iter()
             .find(|e| e.name == "eif")
             .expect("eif runs");
-        per_run.push(nees_series(&sim.truth, &eif.trajectory));
+        let truth = sim.truth.to_trajectory().unwrap();
+        per_run.push(nees_series(&truth, &eif.poses.to_trajectory().unwrap()));
     }
     // Output stamps are on the same grid in every run (the IMU grid from the start).
     let n = per_run.iter().map(Vec::len).min().unwrap_or(0);

@@ -12,13 +12,22 @@ use vinebench::runner::{evaluate, score, simulate};
 use vinebench::scenario::LoadedScenario;
 
 fn check(file: &str) {
+    check_scenario(file, true);
+}
+
+/// Runs a shipped scenario; its expectations must hold, and (with `completes`) the route
+/// must be completed.
+fn check_scenario(file: &str, completes: bool) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("scenarios")
         .join(file);
     let sc = LoadedScenario::load(&path).unwrap_or_else(|e| panic!("{e}"));
     let sim = simulate(&sc, None).unwrap_or_else(|e| panic!("{e}"));
-    assert!(sim.route_completed, "{file}: the route was not completed");
-    let results = evaluate(&sc, &score(&sc, &sim));
+    assert!(
+        sim.route_completed || !completes,
+        "{file}: the route was not completed"
+    );
+    let results = evaluate(&sc, &score(&sc, &sim).unwrap());
     let failed: Vec<String> = results
         .iter()
         .filter(|r| !r.holds)
@@ -88,6 +97,22 @@ fn csl_box_occluder_meets_its_expectations() {
 }
 
 #[test]
+fn closed_loop_on_the_eif_stays_in_its_lane() {
+    check("closed-loop-rtk-outage.toml");
+}
+
+#[test]
+fn closed_loop_on_gnss_alone_leaves_its_lane() {
+    // Its expectations say it does not complete (it gets stuck on the trellis).
+    check_scenario("closed-loop-rtk-outage-gnss.toml", false);
+}
+
+#[test]
+fn closed_loop_poor_gnss_meets_its_expectations() {
+    check("closed-loop-poor-gnss.toml");
+}
+
+#[test]
 fn the_defaults_run_as_a_scenario() {
     check("defaults.toml");
 }
@@ -112,7 +137,7 @@ fn the_kinematic_model_still_runs_a_scenario() {
     let sc = LoadedScenario::from_str(&text, "short-loop-kinematic.toml").unwrap();
     let sim = simulate(&sc, None).unwrap_or_else(|e| panic!("{e}"));
     assert!(sim.route_completed);
-    let scores = score(&sc, &sim);
+    let scores = score(&sc, &sim).unwrap();
     let failed: Vec<String> = evaluate(&sc, &scores)
         .iter()
         .filter(|r| !r.holds)

@@ -39,6 +39,13 @@ impl Trajectory {
         self.samples.push(sample);
         true
     }
+    /// Moves out every pose but the latest, which stays so that [`Trajectory::push`]
+    /// keeps refusing stamps that do not increase: how a consumer streams a growing
+    /// trajectory to disk without holding it.
+    pub fn drain_settled(&mut self) -> std::vec::Drain<'_, PoseSample> {
+        let keep = self.samples.len().saturating_sub(1);
+        self.samples.drain(..keep)
+    }
     /// Number of poses.
     pub fn len(&self) -> usize {
         self.samples.len()
@@ -99,6 +106,22 @@ impl Trajectory {
 mod tests {
     use super::*;
     use nalgebra::UnitQuaternion;
+
+    #[test]
+    fn draining_keeps_the_latest_pose_and_the_order_check() {
+        let mut t = Trajectory::new();
+        assert_eq!(t.drain_settled().count(), 0);
+        for k in 1..=3 {
+            assert!(t.push(pose(k, 0.0, 0.0)));
+        }
+        let out: Vec<i64> = t.drain_settled().map(|s| s.stamp.0).collect();
+        assert_eq!(out, vec![1, 2]);
+        assert_eq!(t.stamps().map(|s| s.0).collect::<Vec<_>>(), vec![3]);
+        assert!(!t.push(pose(3, 0.0, 0.0)) && !t.push(pose(2, 0.0, 0.0)));
+        assert!(t.push(pose(4, 0.0, 0.0)));
+        assert_eq!(t.drain_settled().count(), 1);
+        assert_eq!(t.drain_settled().count(), 0);
+    }
 
     fn pose(t: i64, x: f64, yaw: f64) -> PoseSample {
         PoseSample {

@@ -127,7 +127,7 @@ pub fn row_loop_real_time_factor(estimators: bool, repeats: usize) -> Result<f64
     for _ in 0..repeats.max(1) {
         let t0 = Instant::now();
         let sim = simulate(&sc, None)?;
-        black_box(score(&sc, &sim));
+        black_box(score(&sc, &sim)?);
         best = best.min(t0.elapsed().as_secs_f64());
         simulated = sim.duration_s;
     }

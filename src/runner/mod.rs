@@ -12,20 +12,23 @@ pub mod mapping;
 mod outcome;
 pub mod report;
 mod simulate;
+pub mod steering;
 
 pub use folder::{LOCK_FILE, RunFolder, is_run_output};
 pub(crate) use outcome::io_err;
 pub use outcome::{
-    ComparisonReport, MotionComparison, RobotOutcome, RobotReport, RunError, Simulation, TimeLimit,
+    ComparisonReport, Estimate, MotionComparison, RobotOutcome, RobotReport, RunError, Simulation,
+    SteeringStop, TimeLimit,
 };
 pub use report::{Scores, evaluate, score};
+pub(crate) use simulate::EstimateSpools;
 pub use simulate::{
     Setup, load_world_mesh, setup, simulate, simulate_setup, slam_from_scenario, validate,
 };
 
 use crate::recording::{Recorder, SinkOptions};
 use crate::scenario::LoadedScenario;
-use crate::scoring;
+use crate::scoring::{self, Poses};
 use indicatif::{ProgressBar, ProgressStyle};
 use report::Report;
 use std::io::IsTerminal;
@@ -125,6 +128,7 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
         &SinkOptions::from_params(&sc.scenario.recording),
     )?);
     built.stop = opts.stop.clone();
+    built.spool_dir = Some(dir.clone());
 
     let bar = progress_bar(sc, opts.progress);
     let t0 = Instant::now();
@@ -139,15 +143,15 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
     scoring::tum::write_tum(&gt_path, &sim.truth).map_err(io_err(&gt_path))?;
     for e in &sim.estimates {
         let p = dir.join(format!("estimate_{}.tum", e.name));
-        scoring::tum::write_tum(&p, &e.trajectory).map_err(io_err(&p))?;
+        scoring::tum::write_tum(&p, &e.poses).map_err(io_err(&p))?;
     }
     for c in &sim.comparisons {
         let p = dir.join(format!("ground_truth_{}.tum", c.model.name()));
         scoring::tum::write_tum(&p, &c.truth).map_err(io_err(&p))?;
     }
-    let scores = score(sc, &sim);
+    let scores = score(sc, &sim)?;
     if !sim.slam.is_empty() {
-        let t0 = sim.truth.samples.first().map_or(Nanos(0), |s| s.stamp);
+        let t0 = sim.truth.first().map_or(Nanos(0), |s| s.0);
         let named: Vec<(&str, &scoring::loops::LoopScore)> =
             scores.loops.iter().map(|(n, l)| (n.as_str(), l)).collect();
         let p = dir.join("loops.csv");

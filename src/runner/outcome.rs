@@ -4,13 +4,14 @@
 
 use crate::recording::RecordingError;
 use crate::scenario::ScenarioError;
+use crate::scoring::PoseSpool;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt;
 use std::path::Path;
 use thiserror::Error;
 use vinebench_msgs::{Nanos, Trajectory};
-use vinebench_onboard::estimator::{EstimatorOutput, StageStats};
+use vinebench_onboard::estimator::{EstimatorStats, StageStats};
 use vinebench_sim::motion::{MotionOutcome, RobotMetrics};
 use vinebench_sim::params::MotionModelKind;
 use vinebench_sim::physics::CollisionEvent;
@@ -81,14 +82,27 @@ pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RunError + '
     }
 }
 
+/// The trajectory of one estimate source, on disk, with its input counters.
+#[derive(Debug)]
+pub struct Estimate {
+    /// Source name (`eif`, `gnss`, `tracking_camera`, `slam`, ...).
+    pub name: &'static str,
+    /// Its poses (`world_from_body`, with covariance where the source gives one), spooled
+    /// to the run folder as they were produced (see [`crate::scoring::spool`]).
+    pub poses: PoseSpool,
+    /// Input counters.
+    pub stats: EstimatorStats,
+}
+
 /// What a simulation produced, before scoring.
 #[derive(Debug)]
 pub struct Simulation {
-    /// Ground truth of the body frame at the scenario's ground-truth rate.
-    pub truth: Trajectory,
+    /// Ground truth of the body frame at the scenario's ground-truth rate, spooled to the
+    /// run folder as the run went (see [`crate::scoring::spool`]).
+    pub truth: PoseSpool,
     /// One output per estimator, in the order of `[estimators] run`, then `slam` when
     /// `[slam]` runs.
-    pub estimates: Vec<EstimatorOutput>,
+    pub estimates: Vec<Estimate>,
     /// What the visual SLAM and its baselines produced (their trajectories are also in
     /// `estimates`).
     pub slam: Vec<vinebench_onboard::slam::SlamOutput>,
@@ -121,6 +135,37 @@ pub struct Simulation {
     pub mapping: Option<crate::runner::mapping::MappingOutput>,
     /// The same route on the motion models of `motion.compare_with`.
     pub comparisons: Vec<MotionComparison>,
+    /// What the route follower steered on: `truth` or an estimate source
+    /// (`[control] localization`).
+    pub steering: String,
+    /// When the safety layer of a closed-loop run stopped the robot, and why.
+    pub steering_stop: Option<SteeringStop>,
+    /// Canopy intrusion and clearance to posts and trunks, from the truth.
+    pub clearance: vinebench_sim::motion::ClearanceMetrics,
+    /// Start of the run.
+    pub start: Nanos,
+    /// Centre lines of the vine rows (world x, y every metre), for the closed-loop plot.
+    pub row_lines: Vec<Vec<(f64, f64)>>,
+}
+
+/// Why and when the safety layer of a closed-loop run (`[control]`) stopped the robot.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum SteeringStop {
+    /// The steering source had given nothing newer than `max_estimate_age_ms`.
+    EstimateLost {
+        /// When the stop was decided, s after the start.
+        at_s: f64,
+        /// Age of the newest estimate then, s (infinite: none at all).
+        age_s: f64,
+    },
+    /// The steering estimate's horizontal position σ exceeded `max_position_sigma_m`.
+    Uncertain {
+        /// When the stop was decided, s after the start.
+        at_s: f64,
+        /// The estimate's horizontal position σ then (largest axis), m.
+        sigma_m: f64,
+    },
 }
 
 /// The run's route driven by another motion model (`motion.compare_with`, e.g. the other
@@ -161,6 +206,30 @@ pub enum TimeLimit {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum RobotOutcome {
+    /// Closed loop: the safety layer stopped the robot because its steering estimate was
+    /// older than `[control] max_estimate_age_ms` (or there was none).
+    StoppedEstimateLost {
+        /// End of the run (the robot standing), s after the start.
+        at_s: f64,
+        /// When the stop was decided, s after the start.
+        stopped_at_s: f64,
+        /// Arc length reached along the route, m.
+        progress_m: f64,
+        /// Age of the newest estimate at the stop, s.
+        age_s: f64,
+    },
+    /// Closed loop: the safety layer stopped the robot because its steering estimate's
+    /// position σ exceeded `[control] max_position_sigma_m`.
+    StoppedUncertain {
+        /// End of the run (the robot standing), s after the start.
+        at_s: f64,
+        /// When the stop was decided, s after the start.
+        stopped_at_s: f64,
+        /// Arc length reached along the route, m.
+        progress_m: f64,
+        /// The estimate's horizontal position σ at the stop, m.
+        sigma_m: f64,
+    },
     /// The route was completed (and the final stand-still held).
     Completed {
         /// End of the run, s after the start.
@@ -234,6 +303,8 @@ impl RobotOutcome {
             RobotOutcome::SafetyLimit { .. } => "safety_limit",
             RobotOutcome::PhysicsDiverged { .. } => "physics_diverged",
             RobotOutcome::TippedOver { .. } => "tipped_over",
+            RobotOutcome::StoppedEstimateLost { .. } => "stopped_estimate_lost",
+            RobotOutcome::StoppedUncertain { .. } => "stopped_uncertain",
         }
     }
 }
@@ -241,6 +312,26 @@ impl RobotOutcome {
 impl fmt::Display for RobotOutcome {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
+            RobotOutcome::StoppedEstimateLost {
+                at_s,
+                stopped_at_s,
+                progress_m,
+                age_s,
+            } => write!(
+                f,
+                "stopped_estimate_lost at {stopped_at_s:.1} s after {progress_m:.1} m: the \
+                 steering estimate was {age_s:.2} s old (run ended at {at_s:.1} s)"
+            ),
+            RobotOutcome::StoppedUncertain {
+                at_s,
+                stopped_at_s,
+                progress_m,
+                sigma_m,
+            } => write!(
+                f,
+                "stopped_uncertain at {stopped_at_s:.1} s after {progress_m:.1} m: the \
+                 steering estimate's position σ was {sigma_m:.3} m (run ended at {at_s:.1} s)"
+            ),
             RobotOutcome::Completed { at_s } => write!(f, "completed at {at_s:.1} s"),
             RobotOutcome::Stuck { at_s, progress_m } => {
                 write!(f, "stuck at {at_s:.1} s after {progress_m:.1} m")
@@ -292,6 +383,14 @@ pub struct RobotReport {
     pub collisions: Vec<CollisionEvent>,
     /// The same route on the motion models of `motion.compare_with`.
     pub comparisons: Vec<ComparisonReport>,
+    /// What the route follower steered on (`truth` or an estimate source).
+    pub steering: String,
+    /// Canopy intrusion (time, depth, each stretch) and clearance to posts and trunks
+    /// ([`vinebench_sim::motion::clearance`] defines them).
+    pub clearance: vinebench_sim::motion::ClearanceMetrics,
+    /// Start of the run (intrusion times are relative to it in the Markdown).
+    #[serde(skip)]
+    pub start: Nanos,
 }
 
 /// The route driven by another motion model (`motion.compare_with`), against the run.
@@ -353,9 +452,29 @@ impl RobotReport {
                 tilt_deg: *tilt_deg,
                 progress_m,
             },
-            MotionOutcome::Running => match sim.stopped_by {
-                Some(TimeLimit::MaxDuration) => RobotOutcome::MaxDuration { at_s, progress_m },
-                Some(TimeLimit::Safety) | None => RobotOutcome::SafetyLimit { at_s, progress_m },
+            MotionOutcome::Running => match (&sim.steering_stop, sim.stopped_by) {
+                (Some(SteeringStop::EstimateLost { at_s: t, age_s }), _) => {
+                    RobotOutcome::StoppedEstimateLost {
+                        at_s,
+                        stopped_at_s: *t,
+                        progress_m,
+                        age_s: *age_s,
+                    }
+                }
+                (Some(SteeringStop::Uncertain { at_s: t, sigma_m }), _) => {
+                    RobotOutcome::StoppedUncertain {
+                        at_s,
+                        stopped_at_s: *t,
+                        progress_m,
+                        sigma_m: *sigma_m,
+                    }
+                }
+                (None, Some(TimeLimit::MaxDuration)) => {
+                    RobotOutcome::MaxDuration { at_s, progress_m }
+                }
+                (None, Some(TimeLimit::Safety) | None) => {
+                    RobotOutcome::SafetyLimit { at_s, progress_m }
+                }
             },
         };
         RobotReport {
@@ -364,6 +483,9 @@ impl RobotReport {
             metrics: sim.robot.clone(),
             collisions: sim.collisions.clone(),
             comparisons: sim.comparisons.iter().map(ComparisonReport::new).collect(),
+            steering: sim.steering.clone(),
+            clearance: sim.clearance.clone(),
+            start: sim.start,
         }
     }
 
@@ -379,6 +501,14 @@ impl RobotReport {
             "max_heading_error_deg" => Some(m.max_heading_error_deg),
             "max_tilt_deg" => Some(m.max_tilt_deg),
             "distance_m" => Some(m.distance_m),
+            "canopy_intrusion_s" => Some(self.clearance.canopy_intrusion_s),
+            "canopy_intrusion_max_m" => Some(self.clearance.canopy_intrusion_max_m),
+            "min_clearance_m" => self.clearance.min_clearance_m,
+            "stopped_by_safety" => Some(match self.outcome {
+                RobotOutcome::StoppedEstimateLost { .. }
+                | RobotOutcome::StoppedUncertain { .. } => 1.0,
+                _ => 0.0,
+            }),
             "compare_end_gap_m" => self.largest(|c| c.end_gap_m),
             "compare_path_separation_m" => self.largest(|c| c.max_path_separation_m),
             _ => None,
@@ -443,6 +573,14 @@ mod tests {
                     max_path_separation_m: separation,
                 })
                 .collect(),
+            steering: "truth".into(),
+            clearance: vinebench_sim::motion::ClearanceMetrics {
+                canopy_intrusion_s: 1.5,
+                canopy_intrusion_max_m: 0.0625,
+                min_clearance_m: Some(0.3125),
+                intrusions: Vec::new(),
+            },
+            start: Nanos(0),
         }
     }
 
@@ -456,6 +594,10 @@ mod tests {
             ("max_heading_error_deg", 3.5),
             ("max_tilt_deg", 6.25),
             ("distance_m", 41.5),
+            ("canopy_intrusion_s", 1.5),
+            ("canopy_intrusion_max_m", 0.0625),
+            ("min_clearance_m", 0.3125),
+            ("stopped_by_safety", 0.0),
             ("compare_end_gap_m", 0.25),
             ("compare_path_separation_m", 0.5),
         ];

@@ -6,6 +6,7 @@
 
 use super::outcome::{RobotReport, RunError, Simulation};
 use crate::scenario::LoadedScenario;
+use crate::scoring::Poses;
 use crate::scoring::expect::{ExpectationResult, ROBOT_METRICS, ROBOT_SOURCE};
 use crate::scoring::{self, ScoringParams, SourceScore, metrics};
 use rayon::prelude::*;
@@ -13,7 +14,7 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
-use vinebench_msgs::{Nanos, Trajectory};
+use vinebench_msgs::Nanos;
 use vinebench_sim::physics::Obstacle;
 
 /// Collisions listed in `report.md` (all of them are in `report.json`).
@@ -101,6 +102,15 @@ impl RobotReport {
             "## Robot\n\n**{}** (route {:.1} m, {:.1} m driven).\n",
             self.outcome, m.route_length_m, m.distance_m
         );
+        if self.steering != "truth" {
+            let _ = writeln!(
+                md,
+                "Closed loop: the route follower steered on **{}** (`[control] \
+                 localization`); trajectories.svg shows the path it believed beside the true \
+                 one, with canopy intrusions marked.\n",
+                self.steering
+            );
+        }
         let _ = writeln!(md, "| Metric | value | meaning |\n|---|---:|---|");
         for (name, meaning) in ROBOT_METRICS {
             let value = match (*name, self.metric(name)) {
@@ -128,6 +138,38 @@ impl RobotReport {
                     c.end_gap_m,
                     c.end_heading_deg,
                     c.max_path_separation_m
+                );
+            }
+        }
+        let c = &self.clearance;
+        if !c.intrusions.is_empty() {
+            let _ = writeln!(
+                md,
+                "\nCanopy intrusions ({}, {:.1} s in all; the footprint inside a leaf wall \
+                 seen from above):\n\n| from [s] | to [s] | deepest [m] | at [s] | row | where (x, y) [m] |\n\
+                 |---:|---:|---:|---:|---:|---|",
+                c.intrusions.len(),
+                c.canopy_intrusion_s
+            );
+            let t0 = self.start;
+            for i in c.intrusions.iter().take(MAX_COLLISION_ROWS) {
+                let _ = writeln!(
+                    md,
+                    "| {:.2} | {:.2} | {:.3} | {:.2} | {} | ({:.2}, {:.2}) |",
+                    (i.start - t0).as_secs_f64(),
+                    (i.end - t0).as_secs_f64(),
+                    i.max_depth_m,
+                    (i.deepest_at - t0).as_secs_f64(),
+                    i.row,
+                    i.deepest_xy[0],
+                    i.deepest_xy[1]
+                );
+            }
+            if c.intrusions.len() > MAX_COLLISION_ROWS {
+                let _ = writeln!(
+                    md,
+                    "\n({} more in report.json.)",
+                    c.intrusions.len() - MAX_COLLISION_ROWS
                 );
             }
         }
@@ -244,7 +286,7 @@ impl Report {
                 let stats = &e.stats;
                 SourceReport {
                     name,
-                    poses: e.trajectory.len(),
+                    poses: e.poses.len(),
                     score,
                     used: stats.used.clone(),
                     rejected: stats.rejected.clone(),
@@ -603,30 +645,43 @@ pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunErr
         serde_json::to_string_pretty(report).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"));
     super::write_file(&jp, (json + "\n").as_bytes())?;
 
-    let t0 = sim
-        .truth
-        .samples
-        .first()
-        .map(|s| s.stamp)
-        .unwrap_or(Nanos(0));
-    let named: Vec<(&str, &Trajectory)> = sim
+    let t0 = sim.truth.first().map(|s| s.0).unwrap_or(Nanos(0));
+    let named: Vec<(&str, &dyn Poses)> = sim
         .estimates
         .iter()
-        .map(|e| (e.name, &e.trajectory))
+        .map(|e| (e.name, &e.poses as &dyn Poses))
+        .collect();
+    // Closed loop: the steering source is the path the robot believed it drove.
+    let believed = format!("{} (steered on)", sim.steering);
+    let top_named: Vec<(&str, &dyn Poses)> = named
+        .iter()
+        .map(|&(n, p)| {
+            if n == sim.steering {
+                (believed.as_str(), p)
+            } else {
+                (n, p)
+            }
+        })
+        .collect();
+    let marks: Vec<(f64, f64)> = sim
+        .clearance
+        .intrusions
+        .iter()
+        .map(|i| (i.deepest_xy[0], i.deepest_xy[1]))
         .collect();
     let compared: Vec<String> = sim
         .comparisons
         .iter()
         .map(|c| format!("truth ({})", c.model.name()))
         .collect();
-    let top_view: Vec<(&str, &Trajectory)> = named
+    let top_view: Vec<(&str, &dyn Poses)> = top_named
         .iter()
         .copied()
         .chain(
             compared
                 .iter()
                 .zip(&sim.comparisons)
-                .map(|(n, c)| (n.as_str(), &c.truth)),
+                .map(|(n, c)| (n.as_str(), &c.truth as &dyn Poses)),
         )
         .collect();
     let series: Vec<(&str, &[(Nanos, f64)])> = report
@@ -636,9 +691,17 @@ pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunErr
         .collect();
     // Plots are an aid: a plotting failure is reported in the Markdown, not fatal.
     let mut notes = Vec::new();
-    if let Err(e) =
-        scoring::plots::plot_trajectories_svg(dir.join("trajectories.svg"), &sim.truth, &top_view)
-    {
+    if let Err(e) = scoring::plots::plot_trajectories_marked_svg(
+        dir.join("trajectories.svg"),
+        &sim.truth,
+        &top_view,
+        if sim.steering == "truth" {
+            &[]
+        } else {
+            &sim.row_lines
+        },
+        &marks,
+    ) {
         notes.push(format!("trajectories.svg: {e}"));
     }
     if let Err(e) =
@@ -709,34 +772,58 @@ impl Scores {
 
 /// Scores every estimate against the truth (in parallel; each source is independent,
 /// so the result does not depend on the thread count), and the robot's own run.
-pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Scores {
+///
+/// The trajectories are read from their spools in passes; an error reading one back is
+/// [`RunError::Io`] (a score from part of a trajectory is never returned).
+pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Result<Scores, RunError> {
     let sources = sim
         .estimates
         .par_iter()
         .map(|e| {
-            (
-                e.name.to_string(),
-                scoring::score_source(
-                    &sim.truth,
-                    &e.trajectory,
-                    &sc.scenario.scoring,
-                    &sim.fault_windows,
-                ),
-            )
+            let mut s = scoring::score_source(
+                &sim.truth,
+                &e.poses,
+                &sc.scenario.scoring,
+                &sim.fault_windows,
+            );
+            // Only what the error plot draws is kept (a long run has millions of poses).
+            s.ate_errors = scoring::plots::thin_errors(std::mem::take(&mut s.ate_errors));
+            (e.name.to_string(), s)
         })
         .collect();
+    let spool_err = |p: &dyn Poses| {
+        p.check().map_err(|source| RunError::Io {
+            path: "scoring".to_string(),
+            source,
+        })
+    };
+    spool_err(&sim.truth)?;
+    for e in &sim.estimates {
+        spool_err(&e.poses)?;
+    }
     let th = sc.scenario.scoring.loop_thresholds();
+    // Loop scoring looks the truth up at the loops' stamps: with a SLAM (which holds its
+    // keyframes in memory anyway), the truth is read into memory for it.
+    let truth = if sim.slam.is_empty() {
+        None
+    } else {
+        Some(sim.truth.to_trajectory().map_err(|source| RunError::Io {
+            path: "scoring".to_string(),
+            source,
+        })?)
+    };
     let loops: Vec<(String, scoring::loops::LoopScore)> = sim
         .slam
         .iter()
-        .map(|o| {
-            (
+        .zip(std::iter::repeat(truth.as_ref()))
+        .filter_map(|(o, t)| {
+            Some((
                 o.source.to_string(),
-                scoring::loops::score_loops(&o.loops, &sim.truth, &th),
-            )
+                scoring::loops::score_loops(&o.loops, t?, &th),
+            ))
         })
         .collect();
-    Scores {
+    Ok(Scores {
         sources,
         robot: RobotReport::new(sim),
         maps: sim
@@ -761,7 +848,7 @@ pub fn score(sc: &LoadedScenario, sim: &Simulation) -> Scores {
             })
             .collect(),
         loops,
-    }
+    })
 }
 
 /// Evaluates the scenario's expectations on the scores of the estimate sources and the

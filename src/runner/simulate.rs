@@ -3,22 +3,26 @@
 //! Sensor messages reach the onboard algorithms in *arrival* order (stamp + latency), as
 //! on a robot, and are handed to the recording (when one is open) in the same order.
 
-use super::outcome::{MotionComparison, RobotReport, RunError, Simulation, TimeLimit, io_err};
+use super::outcome::{
+    Estimate, MotionComparison, RobotReport, RunError, Simulation, TimeLimit, io_err,
+};
 use crate::recording::{self, RecordItem, Recorder};
+use crate::runner::steering::{self, SteeringLoop};
 use crate::scenario::{LoadedScenario, ScenarioError};
 use crate::scoring::expect::ROBOT_METRICS;
+use crate::scoring::{Poses, SpoolWriter};
 use indicatif::ProgressBar;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BinaryHeap};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use vinebench_msgs::geodesy::{LocalEnu, normal_gravity};
 use vinebench_msgs::{Nanos, PoseSample, TimedMessage, Trajectory};
 use vinebench_onboard::estimator::{EstimatorError, EstimatorSet, SensorFrames};
 use vinebench_sim::motion::{
-    Dynamic, KinematicSkidSteer, MotionModel, MotionOutcome, RouteTracking,
+    Dynamic, KinematicSkidSteer, MotionModel, MotionOutcome, RouteTracking, RowClearance,
 };
 use vinebench_sim::params::{HeadingMode, MotionModelKind};
 use vinebench_sim::physics::rapier::{HeightGrid, MIN_HEIGHTFIELD_CELL_M, obstacles_of};
@@ -38,7 +42,7 @@ fn drive_comparison(
     start: Nanos,
     gt_rate_hz: f64,
     hard_stop: Option<Nanos>,
-    truth: &Trajectory,
+    truth: &dyn Poses,
 ) -> MotionComparison {
     let safety_stop =
         start + Nanos(motion.expected_duration().0.saturating_mul(3)) + Nanos::from_secs(60);
@@ -66,24 +70,25 @@ fn drive_comparison(
     } else {
         let tree: ImmutableKdTree<f64, 2> = ImmutableKdTree::new_from_slice(&horizontal);
         truth
-            .positions()
-            .map(|p| {
+            .poses()
+            .map(|(_, p)| {
+                let p = p.translation.vector;
                 tree.nearest_one::<SquaredEuclidean>(&[p.x, p.y])
                     .distance
                     .sqrt()
             })
             .fold(0.0, f64::max)
     };
-    let ends = truth.samples.last().zip(theirs.samples.last());
-    let (end_gap_m, end_heading_deg) = ends.map_or((f64::INFINITY, f64::NAN), |(a, b)| {
-        let gap = (b.world_from_body.translation.vector - a.world_from_body.translation.vector)
+    let ends = truth.last().zip(theirs.samples.last());
+    let (end_gap_m, end_heading_deg) = ends.map_or((f64::INFINITY, f64::NAN), |((_, a), b)| {
+        let gap = (b.world_from_body.translation.vector - a.translation.vector)
             .xy()
             .norm();
         let heading = |q: &nalgebra::UnitQuaternion<f64>| {
             let x = q * nalgebra::Vector3::x();
             x.y.atan2(x.x)
         };
-        let d = heading(&b.world_from_body.rotation) - heading(&a.world_from_body.rotation);
+        let d = heading(&b.world_from_body.rotation) - heading(&a.rotation);
         let wrapped =
             -(-d + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) + std::f64::consts::PI;
         (gap, wrapped.to_degrees())
@@ -161,6 +166,10 @@ pub struct Setup {
     /// When set, every message is also sent here as it is delivered, in delivery order
     /// (`vinebench bench` feeds the same stream to the SLAM again); `None` from [`setup`].
     pub tap: Option<std::sync::mpsc::Sender<vinebench_msgs::Message>>,
+    /// Where the ground truth and the estimates are spooled as the run goes (unnamed
+    /// files, gone with the process; see [`crate::scoring::spool`]): the run folder, set
+    /// by [`run`]; `None` = the system's temporary folder.
+    pub spool_dir: Option<PathBuf>,
 }
 
 /// The scenario's `[world.mesh]` file (PLY or OBJ by its extension, relative to the
@@ -178,17 +187,25 @@ pub fn load_world_mesh(
     let ext = path
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase());
-    let mesh = match ext.as_deref() {
-        Some("ply") => vinebench_onboard::mapper::ply::read_mesh(&path),
-        Some("obj") => vinebench_onboard::mapper::export::read_obj(&path),
+    let read = match ext.as_deref() {
+        Some("ply") => vinebench_onboard::mapper::ply::read_mesh,
+        Some("obj") => vinebench_onboard::mapper::export::read_obj,
         _ => {
             return Err(sc.field_error(
                 "world.mesh.file",
                 format!("a .ply or .obj triangle mesh, found `{file}`"),
             ));
         }
-    }
-    .map_err(|e| sc.field_error("world.mesh.file", format!("a triangle mesh: {e}")))?;
+    };
+    // The parsers stream the file: what bounds it is its size, checked first.
+    crate::fsio::check_input_file(&path, crate::fsio::MAX_MESH_BYTES).map_err(|e| {
+        sc.field_error(
+            "world.mesh.file",
+            format!("a triangle mesh of at most 2 GiB in `{file}`: {e}"),
+        )
+    })?;
+    let mesh = read(&path)
+        .map_err(|e| sc.field_error("world.mesh.file", format!("a triangle mesh: {e}")))?;
     let mesh = vinebench_sim::render::scene::WorldMesh {
         vertices: mesh.vertices.iter().map(|v| v.map(f64::from)).collect(),
         colors: mesh.colors,
@@ -236,6 +253,18 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         gravity_mps2,
         sc,
     )?;
+    if s.control.source().is_some() && !motion.supports_steering() {
+        return Err(sc
+            .field_error(
+                "control.localization",
+                format!(
+                    "\"truth\" with motion.model = \"{}\" (its controller steers on the truth \
+                     only): closed-loop runs need motion.model = \"rapier\" or \"mujoco\"",
+                    s.motion.model.name()
+                ),
+            )
+            .into());
+    }
     let mut comparisons = Vec::new();
     for (i, &kind) in s.motion.compare_with.iter().enumerate() {
         let field = format!("motion.compare_with[{i}]");
@@ -324,6 +353,7 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         comparisons,
         slam,
         tap: None,
+        spool_dir: None,
     })
 }
 
@@ -594,11 +624,35 @@ pub fn simulate_setup(
         mut comparisons,
         mut slam,
         tap,
+        spool_dir,
         ..
     } = built;
     let mut png =
         png_dir.map(|d| crate::runner::images::PngDump::new(&d, s.render.debug_png_every));
     let start = sc.start;
+    // Closed loop (`[control] localization`): the follower steers on an estimate.
+    let mut steering = match s.control.source() {
+        None => None,
+        Some(src) => {
+            let kind = s
+                .estimators
+                .run
+                .iter()
+                .copied()
+                .find(|k| k.name() == src)
+                .ok_or_else(|| {
+                    sc.field_error("control.localization", "an estimate source of the run")
+                })?;
+            let drive_start = start + Nanos::from_secs_f64(s.motion.still_before_s);
+            Some(SteeringLoop::new(&s.control, kind, start, drive_start))
+        }
+    };
+    let mut steering_stop = None;
+    let mut clearance = RowClearance::new(
+        &world,
+        robot.geometry.footprint_length_m,
+        robot.geometry.footprint_width_m,
+    );
 
     // Stop conditions: the route's end, the scenario's hard stop, or a safety limit of
     // three times the expected duration (a controller that never reaches the end).
@@ -616,7 +670,25 @@ pub fn simulate_setup(
     let gt_rate = s.scoring.ground_truth_rate_hz;
     let mut gt_index: i64 = 0;
     let gt_time = |i: i64| start + Nanos((i as f64 * 1e9 / gt_rate).round() as i64);
-    let mut truth = Trajectory::new();
+    // Truth and estimates go to disk as they are produced, so memory does not grow with
+    // the run's length. A mapper reads the estimates as they grow: then they stay in
+    // memory until the end (mapping holds its frames anyway).
+    let spool_dir = spool_dir.as_deref();
+    let spool_err = |label: &str| {
+        let path = format!(
+            "{} spool in {}",
+            label,
+            spool_dir
+                .map_or_else(std::env::temp_dir, Path::to_path_buf)
+                .display()
+        );
+        move |source| RunError::Io { path, source }
+    };
+    let mut truth =
+        SpoolWriter::create(spool_dir, "ground-truth").map_err(spool_err("ground-truth"))?;
+    let drain_estimates = mapping.is_none();
+    let mut estimate_spools =
+        EstimateSpools::new(spool_dir, &estimators).map_err(spool_err("estimate"))?;
     let mut messages: BTreeMap<String, u64> = BTreeMap::new();
     let mut pending: BinaryHeap<Reverse<InFlight>> = BinaryHeap::new();
     let mut seq: u64 = 0;
@@ -663,21 +735,32 @@ pub fn simulate_setup(
             stopped_by = Some(TimeLimit::Safety);
             break;
         }
+        if let Some(st) = &mut steering
+            && let Some(stop) = st.steer(t, motion.as_mut())
+        {
+            steering_stop = Some(stop);
+        }
         let state = motion.advance_to(t);
         last_t = t;
         last_odometer = state.odometer_m;
         if t == gt_time(gt_index) {
             tracking.push(&state);
+            clearance.push(t, &state.world_from_body);
             let sample = PoseSample {
                 stamp: t,
                 world_from_body: state.world_from_body,
                 covariance: None,
             };
+            truth.push(&sample).map_err(spool_err("ground-truth"))?;
             if let Some(rec) = &mut recorder {
-                rec.send(RecordItem::Truth(sample.clone()));
+                rec.send(RecordItem::Truth(sample));
             }
-            truth.push(sample);
             gt_index += 1;
+            if drain_estimates && gt_index % SPOOL_EVERY_TRUTH_SAMPLES == 0 {
+                estimate_spools
+                    .drain(&mut estimators)
+                    .map_err(spool_err("estimate"))?;
+            }
         }
         for sensor in sensors.iter_mut() {
             if sensor.next_time() == t {
@@ -704,6 +787,18 @@ pub fn simulate_setup(
                 )?;
             }
         }
+        if let Some(st) = &mut steering {
+            st.observe(t, &estimators);
+            // After a safety stop the run ends once the robot stands.
+            if let Some(at) = st.stopped_at() {
+                let v = state.velocity_in_world;
+                if v.x.hypot(v.y) < steering::STANDING_MPS
+                    || (t - at).as_secs_f64() > steering::STOP_SETTLE_S
+                {
+                    break;
+                }
+            }
+        }
         if let Some(pb) = progress {
             pb.set_position((t - start).as_secs_f64() as u64);
         }
@@ -724,14 +819,18 @@ pub fn simulate_setup(
         )?;
     }
     let out = estimators.finish();
-    let (mut estimates, stage) = (out.estimators, out.stage);
+    let (mut outputs, stage) = (out.estimators, out.stage);
     let slam: Vec<vinebench_onboard::slam::SlamOutput> =
         slam.into_iter().map(|v| v.finish()).collect();
-    estimates.extend(slam.iter().map(vinebench_onboard::slam::estimator_output));
+    outputs.extend(slam.iter().map(vinebench_onboard::slam::estimator_output));
     let mapping = match (mapping, renderer) {
-        (Some(m), Some(truth)) => Some(m.finish(&estimates, Some(truth))?),
+        (Some(m), Some(truth)) => Some(m.finish(&outputs, Some(truth))?),
         _ => None,
     };
+    let estimates = estimate_spools
+        .finish(outputs)
+        .map_err(spool_err("estimate"))?;
+    let truth = truth.finish().map_err(spool_err("ground-truth"))?;
     let fault_windows = s
         .faults
         .gnss
@@ -764,6 +863,22 @@ pub fn simulate_setup(
         robot: tracking.metrics(),
         fault_windows,
         mapping,
+        steering: s.control.localization.clone(),
+        steering_stop,
+        start,
+        row_lines: (0..world.layout.count)
+            .map(|r| {
+                let l = &world.layout;
+                let n = l.length_m.ceil() as usize;
+                (0..=n)
+                    .map(|k| {
+                        let (p, _) = l.point(l.row_offset_m(r), (k as f64).min(l.length_m));
+                        (p.x, p.y)
+                    })
+                    .collect()
+            })
+            .collect(),
+        clearance: clearance.metrics().clone(),
     };
     if let Some(mut rec) = recorder {
         if let Some(m) = &sim.mapping {
@@ -783,11 +898,18 @@ pub fn simulate_setup(
             }
         }
         for (i, e) in sim.estimates.iter().enumerate() {
-            rec.send(RecordItem::Trajectory {
-                topic: recording::topics::estimate_odom(e.name),
-                tf_topic: (i == 0).then(|| recording::topics::TF.to_string()),
-                trajectory: e.trajectory.clone(),
-            });
+            // One pose per item: the recorder's queue holds a bounded number of items, so
+            // the spool is never read into memory whole.
+            for sample in e.poses.samples() {
+                rec.send(RecordItem::Trajectory {
+                    topic: recording::topics::estimate_odom(e.name),
+                    tf_topic: (i == 0).then(|| recording::topics::TF.to_string()),
+                    trajectory: Trajectory {
+                        samples: vec![sample],
+                    },
+                });
+            }
+            e.poses.check().map_err(spool_err(e.name))?;
         }
         rec.send(RecordItem::Metadata(
             recording::META_RUN.to_string(),
@@ -796,6 +918,72 @@ pub fn simulate_setup(
         rec.finish()?;
     }
     Ok(sim)
+}
+
+/// Estimates move from the estimators to their spools every this many ground-truth
+/// samples (0.32 s at 200 Hz).
+const SPOOL_EVERY_TRUTH_SAMPLES: i64 = 64;
+
+/// The estimates of a run or replay on their way to disk: one spool per estimator of
+/// the set, filled from [`EstimatorSet::drain_poses`] as the run goes.
+pub(crate) struct EstimateSpools<'a> {
+    dir: Option<&'a Path>,
+    writers: Vec<SpoolWriter>,
+}
+
+impl<'a> EstimateSpools<'a> {
+    /// One spool per estimator of `estimators`, in `dir` (`None`: the system's temporary
+    /// folder).
+    pub(crate) fn new(
+        dir: Option<&'a Path>,
+        estimators: &EstimatorSet,
+    ) -> std::io::Result<EstimateSpools<'a>> {
+        let writers = estimators
+            .names()
+            .into_iter()
+            .map(|name| SpoolWriter::create(dir, format!("{name} estimate")))
+            .collect::<std::io::Result<_>>()?;
+        Ok(EstimateSpools { dir, writers })
+    }
+
+    /// Moves the estimators' settled poses to their spools.
+    pub(crate) fn drain(&mut self, estimators: &mut EstimatorSet) -> std::io::Result<()> {
+        let mut result = Ok(());
+        estimators.drain_poses(|i, sample| {
+            if result.is_ok()
+                && let Some(w) = self.writers.get_mut(i)
+            {
+                result = w.push(&sample).map(|_| ());
+            }
+        });
+        result
+    }
+
+    /// The finished estimates: what is still in memory (each estimator's latest poses,
+    /// all of them when nothing was drained, the SLAM sources after the estimators)
+    /// joins the spools, in `outputs` order.
+    pub(crate) fn finish(
+        self,
+        outputs: Vec<vinebench_onboard::estimator::EstimatorOutput>,
+    ) -> std::io::Result<Vec<Estimate>> {
+        let mut writers = self.writers.into_iter();
+        let mut estimates = Vec::with_capacity(outputs.len());
+        for o in outputs {
+            let mut w = match writers.next() {
+                Some(w) => w,
+                None => SpoolWriter::create(self.dir, format!("{} estimate", o.name))?,
+            };
+            for sample in &o.trajectory.samples {
+                w.push(sample)?;
+            }
+            estimates.push(Estimate {
+                name: o.name,
+                poses: w.finish()?,
+                stats: o.stats,
+            });
+        }
+        Ok(estimates)
+    }
 }
 
 /// The [`recording::META_SCENARIO`] record of a run: what a replay needs to rebuild the

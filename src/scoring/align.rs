@@ -5,6 +5,7 @@
 //! that metrics computed here on the trajectories we write as TUM files are the ones evo
 //! computes on those files.
 
+use crate::scoring::spool::{Pose, Poses};
 use nalgebra::{Isometry3, Matrix3, Rotation3, Similarity3, Translation3, UnitQuaternion, Vector3};
 use thiserror::Error;
 use vinebench_msgs::{Nanos, Trajectory};
@@ -97,20 +98,44 @@ pub fn umeyama(
             dst: dst.len(),
         });
     }
-    if src.is_empty() {
+    umeyama_passes(|| src.iter().copied().zip(dst.iter().copied()), with_scale)
+}
+
+/// [`umeyama`] over `(src, dst)` point pairs read in two passes (means, then centred
+/// sums): `pairs` gives a fresh pass on every call. The arithmetic is that of
+/// [`umeyama`] on slices, in the same order, so the result is identical; nothing is
+/// held per point (what scoring uses on a long run's trajectories on disk).
+pub fn umeyama_passes<I>(pairs: impl Fn() -> I, with_scale: bool) -> Result<Umeyama, AlignError>
+where
+    I: Iterator<Item = (Vector3<f64>, Vector3<f64>)>,
+{
+    let finite = |p: &Vector3<f64>| p.iter().all(|x| x.is_finite());
+    let (mut count, mut bad_src, mut bad_dst) = (0_usize, None, None);
+    let mut sum_src = Vector3::zeros();
+    let mut sum_dst = Vector3::zeros();
+    for (x, y) in pairs() {
+        if bad_src.is_none() && !finite(&x) {
+            bad_src = Some(count);
+        }
+        if bad_dst.is_none() && !finite(&y) {
+            bad_dst = Some(count);
+        }
+        sum_src += x;
+        sum_dst += y;
+        count += 1;
+    }
+    if count == 0 {
         return Err(AlignError::Empty);
     }
-    for set in [src, dst] {
-        if let Some(index) = set.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
-            return Err(AlignError::NonFinite { index });
-        }
+    if let Some(index) = bad_src.or(bad_dst) {
+        return Err(AlignError::NonFinite { index });
     }
-    let n = src.len() as f64;
-    let mean_src = src.iter().sum::<Vector3<f64>>() / n;
-    let mean_dst = dst.iter().sum::<Vector3<f64>>() / n;
+    let n = count as f64;
+    let mean_src = sum_src / n;
+    let mean_dst = sum_dst / n;
     let mut sigma_src = 0.0;
     let mut cov = Matrix3::zeros();
-    for (x, y) in src.iter().zip(dst) {
+    for (x, y) in pairs() {
         let dx = x - mean_src;
         let dy = y - mean_dst;
         sigma_src += dx.norm_squared();
@@ -226,6 +251,125 @@ pub fn matching_time_indices(
         pairs.push((i1, best));
     }
     pairs
+}
+
+/// [`matching_time_indices`] as a merge of two sorted streams: `driving` (evo's
+/// `stamps_1`) and `other` (`stamps_2`, whose first and last stamps are `other_span`),
+/// each item an evo-seconds stamp with a payload. For each driving item inside the span
+/// (± `max_diff`), the neighbours of its insertion point in `other` are compared exactly
+/// as there; yields `(driving payload, other payload)`. With sorted (non-decreasing)
+/// driving stamps the pairs are the ones [`matching_time_indices`] finds, in its order,
+/// while only two items of `other` are held.
+pub struct MatchStream<T, D, O>
+where
+    D: Iterator<Item = (f64, T)>,
+    O: Iterator<Item = (f64, T)>,
+{
+    driving: D,
+    other: O,
+    span: Option<(f64, f64)>,
+    max_diff: f64,
+    prev: Option<(f64, T)>,
+    cur: Option<(f64, T)>,
+    other_done: bool,
+}
+
+impl<T: Copy, D, O> MatchStream<T, D, O>
+where
+    D: Iterator<Item = (f64, T)>,
+    O: Iterator<Item = (f64, T)>,
+{
+    /// The merge of `driving` onto `other` (see [`MatchStream`]); `other_span` is `None`
+    /// when `other` is empty.
+    pub fn new(driving: D, mut other: O, other_span: Option<(f64, f64)>, max_diff: f64) -> Self {
+        let cur = other.next();
+        MatchStream {
+            driving,
+            other,
+            span: other_span,
+            max_diff,
+            prev: None,
+            other_done: cur.is_none(),
+            cur,
+        }
+    }
+}
+
+impl<T: Copy, D, O> Iterator for MatchStream<T, D, O>
+where
+    D: Iterator<Item = (f64, T)>,
+    O: Iterator<Item = (f64, T)>,
+{
+    type Item = (T, T);
+    fn next(&mut self) -> Option<(T, T)> {
+        let (first, last) = self.span?;
+        for (t1, a) in self.driving.by_ref() {
+            if t1 < first - self.max_diff || t1 > last + self.max_diff {
+                continue;
+            }
+            // The insertion point (numpy.searchsorted, side="right", clamped to the last
+            // item): advance while the current item is not after t1 and another follows.
+            while let Some(c) = self.cur {
+                if c.0 > t1 || self.other_done {
+                    break;
+                }
+                match self.other.next() {
+                    Some(n) => {
+                        self.prev = Some(c);
+                        self.cur = Some(n);
+                    }
+                    None => self.other_done = true,
+                }
+            }
+            let (t_ub, b_ub) = self.cur?;
+            let diff_ub = t_ub - t1;
+            let diff_lb = self.prev.map_or(f64::INFINITY, |(t, _)| t1 - t);
+            if diff_ub <= self.max_diff && diff_ub < diff_lb {
+                return Some((a, b_ub));
+            }
+            if diff_lb <= self.max_diff && diff_lb <= diff_ub {
+                if let Some((_, b_lb)) = self.prev {
+                    return Some((a, b_lb));
+                }
+            }
+        }
+        None
+    }
+}
+
+/// [`associate`] on two pose sequences read as streams: yields `(reference pose,
+/// estimate pose)` pairs in the same order and with the same choices, holding nothing
+/// per pose (trajectories on disk are associated in one pass over each).
+pub fn associate_poses<'a>(
+    reference: &'a dyn Poses,
+    estimate: &'a dyn Poses,
+    max_diff: Nanos,
+) -> Box<dyn Iterator<Item = (Pose, Pose)> + 'a> {
+    let max_diff = evo_seconds(max_diff);
+    let span = |p: &dyn Poses| {
+        p.first()
+            .zip(p.last())
+            .map(|(a, b)| (evo_seconds(a.0), evo_seconds(b.0)))
+    };
+    let stream = |p: &'a dyn Poses| p.poses().map(|x| (evo_seconds(x.0), x));
+    if estimate.len() > reference.len() {
+        Box::new(MatchStream::new(
+            stream(reference),
+            stream(estimate),
+            span(estimate),
+            max_diff,
+        ))
+    } else {
+        Box::new(
+            MatchStream::new(
+                stream(estimate),
+                stream(reference),
+                span(reference),
+                max_diff,
+            )
+            .map(|(e, r)| (r, e)),
+        )
+    }
 }
 
 #[cfg(test)]
@@ -464,6 +608,55 @@ mod tests {
                 "{a:?} {b:?} {max_diff}"
             );
         }
+    }
+
+    #[test]
+    fn streamed_association_equals_the_indexed_one() {
+        // Stamps close enough (tens of ns at 1.7e9 s) that evo's f64 seconds tie or
+        // collapse, plus the ordinary cases.
+        let mut rng = ChaCha8Rng::seed_from_u64(12);
+        for case in 0..400 {
+            let base = if case % 2 == 0 {
+                0
+            } else {
+                1_700_000_000_000_000_000
+            };
+            let make = |rng: &mut ChaCha8Rng| {
+                let step = if case % 4 < 2 { Q } else { 97 };
+                let n = rng.random_range(0..40);
+                let mut t = base + rng.random_range(-5..5) * step;
+                (0..n)
+                    .map(|_| {
+                        t += rng.random_range(1..=4) * step;
+                        t
+                    })
+                    .collect::<Vec<i64>>()
+            };
+            let (a, b) = (traj(&make(&mut rng)), traj(&make(&mut rng)));
+            let max_diff = Nanos(rng.random_range(0..4) * if case % 4 < 2 { Q } else { 97 });
+            let indexed: Vec<(i64, i64)> = associate(&a, &b, max_diff)
+                .into_iter()
+                .map(|(r, e)| (a.samples[r].stamp.0, b.samples[e].stamp.0))
+                .collect();
+            let streamed: Vec<(i64, i64)> = associate_poses(&a, &b, max_diff)
+                .map(|(r, e)| (r.0.0, e.0.0))
+                .collect();
+            assert_eq!(streamed, indexed, "case {case}");
+        }
+    }
+
+    #[test]
+    fn umeyama_from_passes_is_bit_identical_to_slices() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let src = random_points(&mut rng, 500);
+        let dst = random_points(&mut rng, 500);
+        let a = umeyama(&src, &dst, true).unwrap();
+        let b = umeyama_passes(|| src.iter().copied().zip(dst.iter().copied()), true).unwrap();
+        assert_eq!(a, b);
+        assert_eq!(
+            umeyama_passes(std::iter::empty, false),
+            Err(AlignError::Empty)
+        );
     }
 
     #[test]

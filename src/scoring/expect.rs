@@ -179,8 +179,8 @@ pub const ROBOT_METRICS: &[(&str, &str)] = &[
     ),
     (
         "route_completed",
-        "1 when the robot completed its route, 0 when it got stuck, a time limit stopped it, \
-         its physics diverged or it tipped over",
+        "1 when the robot completed its route, 0 when it got stuck, a time limit or the \
+         closed-loop safety layer stopped it, its physics diverged or it tipped over",
     ),
     (
         "max_cross_track_m",
@@ -195,6 +195,22 @@ pub const ROBOT_METRICS: &[(&str, &str)] = &[
         "largest angle between the body z axis and the vertical (degrees)",
     ),
     ("distance_m", "distance travelled by the body origin (m)"),
+    (
+        "canopy_intrusion_s",
+        "time the robot's footprint spent inside a vine's leaf wall seen from above (s)",
+    ),
+    (
+        "canopy_intrusion_max_m",
+        "deepest intrusion of the footprint into a leaf wall, across the row (m)",
+    ),
+    (
+        "min_clearance_m",
+        "smallest horizontal distance between the footprint and a trellis post or vine trunk (m; negative: overlap)",
+    ),
+    (
+        "stopped_by_safety",
+        "1 when the closed-loop safety layer stopped the robot (estimate lost or too uncertain), else 0",
+    ),
     (
         "compare_end_gap_m",
         "largest horizontal distance between the run's end position and that of a `motion.compare_with` model (m)",

@@ -2,17 +2,18 @@
 //! seed paper's Table 1, errors inside fault windows and coverage.
 //!
 //! APE and RPE follow evo 1.38 (`evo_ape` / `evo_rpe`, translation part): poses are
-//! associated by time ([`associate`]), optionally the estimate is aligned onto the
+//! associated by time ([`associate`](super::align::associate)), optionally the estimate is aligned onto the
 //! reference with SE(3) Umeyama (`-a`), then per-pose errors are reduced to [`Stats`] as
 //! numpy does. Every failure (nothing associated, degenerate alignment, no RPE pair) is an
 //! [`ScoreError`] value.
 
 use super::ScoringParams;
-use super::align::{AlignError, associate, umeyama};
+use super::align::{AlignError, associate_poses, umeyama_passes};
+use super::spool::Poses;
 use nalgebra::{Isometry3, Vector3};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
-use vinebench_msgs::{Nanos, Trajectory};
+use vinebench_msgs::Nanos;
 
 /// A metric could not be computed.
 #[derive(Clone, Debug, PartialEq, Error)]
@@ -140,87 +141,75 @@ pub enum PairsFrom {
     Reference,
 }
 
-/// Associated poses: reference stamps, reference poses and estimate poses, all
-/// `world_from_body`, the estimate's optionally aligned onto the reference.
-struct Associated {
-    stamps: Vec<Nanos>,
-    reference: Vec<Isometry3<f64>>,
-    estimate: Vec<Isometry3<f64>>,
-    alignment: Option<Isometry3<f64>>,
-}
-
-fn associated(
-    reference: &Trajectory,
-    estimate: &Trajectory,
+/// The SE(3) Umeyama alignment `world_from_estimate_world` of the associated positions
+/// (estimate onto reference), read in two passes over the association.
+fn alignment(
+    reference: &dyn Poses,
+    estimate: &dyn Poses,
     max_diff: Nanos,
-    align: bool,
-) -> Result<Associated, ScoreError> {
-    let pairs = associate(reference, estimate, max_diff);
-    if pairs.is_empty() {
-        return Err(ScoreError::NoAssociation {
-            reference_poses: reference.len(),
-            estimate_poses: estimate.len(),
-            max_diff,
-        });
-    }
-    let stamps = pairs
-        .iter()
-        .map(|&(r, _)| reference.samples[r].stamp)
-        .collect();
-    let ref_poses: Vec<_> = pairs
-        .iter()
-        .map(|&(r, _)| reference.samples[r].world_from_body)
-        .collect();
-    let mut est_poses: Vec<_> = pairs
-        .iter()
-        .map(|&(_, e)| estimate.samples[e].world_from_body)
-        .collect();
-    let alignment = if align {
-        let src: Vec<Vector3<f64>> = est_poses.iter().map(|p| p.translation.vector).collect();
-        let dst: Vec<Vector3<f64>> = ref_poses.iter().map(|p| p.translation.vector).collect();
-        let world_from_estimate_world = umeyama(&src, &dst, false)?.isometry();
-        for p in &mut est_poses {
-            *p = world_from_estimate_world * *p;
-        }
-        Some(world_from_estimate_world)
-    } else {
-        None
+) -> Result<Isometry3<f64>, ScoreError> {
+    let pairs = || {
+        associate_poses(reference, estimate, max_diff)
+            .map(|(r, e)| (e.1.translation.vector, r.1.translation.vector))
     };
-    Ok(Associated {
-        stamps,
-        reference: ref_poses,
-        estimate: est_poses,
-        alignment,
-    })
+    match umeyama_passes(pairs, false) {
+        Ok(u) => Ok(u.isometry()),
+        Err(AlignError::Empty) => Err(no_association(reference, estimate, max_diff)),
+        Err(e) => Err(e.into()),
+    }
 }
 
-/// APE, translation part: poses associated by time ([`associate`], `max_diff`), the
-/// estimate aligned onto the reference with SE(3) Umeyama when `align` (evo's `-a`), and
-/// the error of each pair is `‖p_est − p_ref‖`.
-pub fn ape(
-    reference: &Trajectory,
-    estimate: &Trajectory,
-    max_diff: Nanos,
-    align: bool,
-) -> Result<Ape, ScoreError> {
-    let a = associated(reference, estimate, max_diff, align)?;
-    let errors: Vec<(Nanos, f64)> = a
-        .stamps
-        .iter()
-        .zip(a.reference.iter().zip(&a.estimate))
-        .map(|(&t, (r, e))| (t, (e.translation.vector - r.translation.vector).norm()))
-        .collect();
-    let values: Vec<f64> = errors.iter().map(|e| e.1).collect();
-    let stats = Stats::from_errors(&values).ok_or(ScoreError::NoAssociation {
+fn no_association(reference: &dyn Poses, estimate: &dyn Poses, max_diff: Nanos) -> ScoreError {
+    ScoreError::NoAssociation {
         reference_poses: reference.len(),
         estimate_poses: estimate.len(),
         max_diff,
-    })?;
+    }
+}
+
+/// The associated `(stamp, reference pose, estimate pose)` triples, the estimate's
+/// moved by `alignment` when given: one pass over each trajectory.
+fn associated<'a>(
+    reference: &'a dyn Poses,
+    estimate: &'a dyn Poses,
+    max_diff: Nanos,
+    alignment: Option<Isometry3<f64>>,
+) -> impl Iterator<Item = (Nanos, Isometry3<f64>, Isometry3<f64>)> + 'a {
+    associate_poses(reference, estimate, max_diff).map(move |(r, e)| {
+        let est = match alignment {
+            Some(a) => a * e.1,
+            None => e.1,
+        };
+        (r.0, r.1, est)
+    })
+}
+
+/// APE, translation part: poses associated by time ([`associate`](super::align::associate), `max_diff`), the
+/// estimate aligned onto the reference with SE(3) Umeyama when `align` (evo's `-a`), and
+/// the error of each pair is `‖p_est − p_ref‖`. Reads the trajectories in passes (one,
+/// three with alignment); holds the per-pair errors.
+pub fn ape(
+    reference: &dyn Poses,
+    estimate: &dyn Poses,
+    max_diff: Nanos,
+    align: bool,
+) -> Result<Ape, ScoreError> {
+    let alignment = if align {
+        Some(alignment(reference, estimate, max_diff)?)
+    } else {
+        None
+    };
+    let errors: Vec<(Nanos, f64)> = associated(reference, estimate, max_diff, alignment)
+        .map(|(t, r, e)| (t, (e.translation.vector - r.translation.vector).norm()))
+        .collect();
+    let values: Vec<f64> = errors.iter().map(|e| e.1).collect();
+    let stats =
+        Stats::from_errors(&values).ok_or_else(|| no_association(reference, estimate, max_diff))?;
     Ok(Ape {
         stats,
+        matched: errors.len(),
         errors,
-        alignment: a.alignment,
-        matched: a.stamps.len(),
+        alignment,
     })
 }
 
@@ -229,27 +218,57 @@ pub fn ape(
 /// closes the pair, opens the next and the sum restarts from zero.
 pub fn pairs_by_path(positions: &[Vector3<f64>], delta_m: f64) -> Vec<(usize, usize)> {
     let mut pairs = Vec::new();
-    let mut last = 0;
-    let mut path = 0.0;
-    for i in 1..positions.len() {
-        path += (positions[i] - positions[i - 1]).norm();
-        if path >= delta_m {
-            pairs.push((last, i));
-            last = i;
-            path = 0.0;
+    let mut walk = PathPairs::new(delta_m);
+    for (i, p) in positions.iter().enumerate() {
+        if let Some(first) = walk.push(i, p) {
+            pairs.push((first, i));
         }
     }
     pairs
+}
+
+/// [`pairs_by_path`] one position at a time: holds the open pair's first item and the
+/// path summed since.
+struct PathPairs<T> {
+    delta_m: f64,
+    open: Option<T>,
+    last: Option<Vector3<f64>>,
+    path: f64,
+}
+
+impl<T: Copy> PathPairs<T> {
+    fn new(delta_m: f64) -> Self {
+        PathPairs {
+            delta_m,
+            open: None,
+            last: None,
+            path: 0.0,
+        }
+    }
+    /// Takes the next item at position `p`; returns the first item of the pair it closes.
+    fn push(&mut self, item: T, p: &Vector3<f64>) -> Option<T> {
+        let Some(last) = self.last.replace(*p) else {
+            self.open = Some(item);
+            return None;
+        };
+        self.path += (p - last).norm();
+        if self.path >= self.delta_m {
+            self.path = 0.0;
+            return self.open.replace(item);
+        }
+        None
+    }
 }
 
 /// RPE over `delta_m` of travelled path, translation part: poses associated by time,
 /// optionally aligned (SE(3) alignment does not change relative poses, so the result is
 /// the same up to rounding), consecutive pairs (i, j) by [`pairs_by_path`] on the
 /// `pairs_from` trajectory's associated positions, and for each pair
-/// `E = (Q_i⁻¹Q_j)⁻¹ (P_i⁻¹P_j)` (Q reference, P estimate), error `‖trans(E)‖`.
+/// `E = (Q_i⁻¹Q_j)⁻¹ (P_i⁻¹P_j)` (Q reference, P estimate), error `‖trans(E)‖`. Streams
+/// the association, holding the open pair only.
 pub fn rpe(
-    reference: &Trajectory,
-    estimate: &Trajectory,
+    reference: &dyn Poses,
+    estimate: &dyn Poses,
     max_diff: Nanos,
     delta_m: f64,
     align: bool,
@@ -258,32 +277,37 @@ pub fn rpe(
     if !(delta_m.is_finite() && delta_m >= 0.0) {
         return Err(ScoreError::InvalidDelta { delta_m });
     }
-    let a = associated(reference, estimate, max_diff, align)?;
-    let path_poses = match pairs_from {
-        PairsFrom::Estimate => &a.estimate,
-        PairsFrom::Reference => &a.reference,
+    let alignment = if align {
+        Some(alignment(reference, estimate, max_diff)?)
+    } else {
+        None
     };
-    let positions: Vec<Vector3<f64>> = path_poses.iter().map(|p| p.translation.vector).collect();
-    let pairs = pairs_by_path(&positions, delta_m);
-    let errors: Vec<(Nanos, f64)> = pairs
-        .iter()
-        .map(|&(i, j)| {
-            let q_rel = a.reference[i].inverse() * a.reference[j];
-            let p_rel = a.estimate[i].inverse() * a.estimate[j];
-            let e = q_rel.inverse() * p_rel;
-            (a.stamps[j], e.translation.vector.norm())
-        })
-        .collect();
+    let mut walk = PathPairs::new(delta_m);
+    let mut errors: Vec<(Nanos, f64)> = Vec::new();
+    let mut matched = 0;
+    for (t, r, e) in associated(reference, estimate, max_diff, alignment) {
+        matched += 1;
+        let p = match pairs_from {
+            PairsFrom::Estimate => e.translation.vector,
+            PairsFrom::Reference => r.translation.vector,
+        };
+        if let Some((_, ri, ei)) = walk.push((t, r, e), &p) {
+            let q_rel = ri.inverse() * r;
+            let p_rel = ei.inverse() * e;
+            let err = q_rel.inverse() * p_rel;
+            errors.push((t, err.translation.vector.norm()));
+        }
+    }
+    if matched == 0 {
+        return Err(no_association(reference, estimate, max_diff));
+    }
     let values: Vec<f64> = errors.iter().map(|e| e.1).collect();
-    let stats = Stats::from_errors(&values).ok_or(ScoreError::NoRpePairs {
-        delta_m,
-        matched: a.stamps.len(),
-    })?;
+    let stats = Stats::from_errors(&values).ok_or(ScoreError::NoRpePairs { delta_m, matched })?;
     Ok(Rpe {
         stats,
         errors,
-        alignment: a.alignment,
-        matched: a.stamps.len(),
+        alignment,
+        matched,
     })
 }
 
@@ -302,17 +326,17 @@ pub struct LoopMetrics {
 }
 
 /// Table 1's D, D_EN, D_U and σ_U of `traj` (start-to-end discrepancy of a closed loop
-/// and spread of the altitude).
-pub fn closed_loop(traj: &Trajectory) -> Result<LoopMetrics, ScoreError> {
-    let (Some(first), Some(last)) = (traj.samples.first(), traj.samples.last()) else {
+/// and spread of the altitude). Two passes (mean, then spread).
+pub fn closed_loop(traj: &dyn Poses) -> Result<LoopMetrics, ScoreError> {
+    let (Some(first), Some(last)) = (traj.first(), traj.last()) else {
         return Err(ScoreError::Empty);
     };
-    let d = last.world_from_body.translation.vector - first.world_from_body.translation.vector;
+    let d = last.1.translation.vector - first.1.translation.vector;
     let n = traj.len() as f64;
-    let mean_u = traj.positions().map(|p| p.z).sum::<f64>() / n;
+    let mean_u = traj.poses().map(|p| p.1.translation.z).sum::<f64>() / n;
     let var_u = traj
-        .positions()
-        .map(|p| (p.z - mean_u).powi(2))
+        .poses()
+        .map(|p| (p.1.translation.z - mean_u).powi(2))
         .sum::<f64>()
         / n;
     Ok(LoopMetrics {
@@ -327,32 +351,26 @@ pub fn closed_loop(traj: &Trajectory) -> Result<LoopMetrics, ScoreError> {
 /// pairs whose reference stamp lies in one of the half-open `windows` `[start, end)`;
 /// `None` when there is no such pair.
 pub fn max_error_in_windows(
-    reference: &Trajectory,
-    estimate: &Trajectory,
+    reference: &dyn Poses,
+    estimate: &dyn Poses,
     max_diff: Nanos,
     windows: &[(Nanos, Nanos)],
 ) -> Option<f64> {
-    associate(reference, estimate, max_diff)
-        .into_iter()
-        .filter(|&(r, _)| {
-            let t = reference.samples[r].stamp;
-            windows.iter().any(|&(start, end)| start <= t && t < end)
-        })
-        .map(|(r, e)| {
-            (estimate.samples[e].world_from_body.translation.vector
-                - reference.samples[r].world_from_body.translation.vector)
-                .norm()
-        })
+    associated(reference, estimate, max_diff, None)
+        .filter(|&(t, _, _)| windows.iter().any(|&(start, end)| start <= t && t < end))
+        .map(|(_, r, e)| (e.translation.vector - r.translation.vector).norm())
         .reduce(f64::max)
 }
 
 /// Median spacing of a trajectory's stamps (zero with fewer than two poses).
-fn median_period(traj: &Trajectory) -> Nanos {
-    let mut dts: Vec<i64> = traj
-        .samples
-        .windows(2)
-        .map(|w| (w[1].stamp - w[0].stamp).0)
-        .collect();
+fn median_period(traj: &dyn Poses) -> Nanos {
+    let mut dts: Vec<i64> = Vec::with_capacity(traj.len().saturating_sub(1));
+    let mut last = None;
+    for (t, _) in traj.poses() {
+        if let Some(l) = last.replace(t) {
+            dts.push((t - l).0);
+        }
+    }
     if dts.is_empty() {
         return Nanos::ZERO;
     }
@@ -370,19 +388,25 @@ fn median_period(traj: &Trajectory) -> Nanos {
 /// estimate's median stamp spacing. This does not depend on the estimate's rate (a 10 Hz
 /// source with no gap covers a 200 Hz reference fully), and a gap of `g > 2P` in the
 /// estimate leaves `g − 2P` of reference time uncovered. Zero when the reference is empty.
-pub fn coverage(reference: &Trajectory, estimate: &Trajectory, max_diff: Nanos) -> f64 {
+pub fn coverage(reference: &dyn Poses, estimate: &dyn Poses, max_diff: Nanos) -> f64 {
     if reference.is_empty() {
         return 0.0;
     }
     let reach = max_diff.max(median_period(estimate));
-    let est = &estimate.samples;
+    // A merge: `before` is the last estimate stamp < t, `after` the first ≥ t.
+    let mut est = estimate.poses().map(|p| p.0);
+    let (mut before, mut after) = (None, est.next());
     let covered = reference
-        .stamps()
-        .filter(|&t| {
-            let i = est.partition_point(|s| s.stamp < t);
-            let after = est.get(i).is_some_and(|s| s.stamp - t <= reach);
-            let before = i > 0 && t - est[i - 1].stamp <= reach;
-            after || before
+        .poses()
+        .filter(|&(t, _)| {
+            while let Some(a) = after {
+                if a >= t {
+                    break;
+                }
+                before = Some(a);
+                after = est.next();
+            }
+            after.is_some_and(|a| a - t <= reach) || before.is_some_and(|b| t - b <= reach)
         })
         .count();
     covered as f64 / reference.len() as f64
@@ -432,7 +456,8 @@ pub struct SourceScore {
     pub rpe: Option<Stats>,
     /// Why metrics are missing.
     pub problems: Vec<String>,
-    /// Per associated pose: (reference stamp, unaligned translation error in m), for plots;
+    /// (reference stamp, unaligned translation error in m) of every associated pose, for
+    /// plots (a run keeps only what they draw: [`crate::scoring::plots::thin_errors`]);
     /// not serialized.
     #[serde(skip)]
     pub ate_errors: Vec<(Nanos, f64)>,
@@ -479,8 +504,8 @@ impl SourceScore {
 /// `[start, end)` stamps of injected faults (for `outage_max_error_m`). Never fails:
 /// metrics that cannot be computed are `None` and explained in `problems`.
 pub fn score_source(
-    reference: &Trajectory,
-    estimate: &Trajectory,
+    reference: &dyn Poses,
+    estimate: &dyn Poses,
     params: &ScoringParams,
     fault_windows: &[(Nanos, Nanos)],
 ) -> SourceScore {
@@ -554,7 +579,7 @@ pub fn score_source(
 mod tests {
     use super::*;
     use nalgebra::{Translation3, UnitQuaternion};
-    use vinebench_msgs::PoseSample;
+    use vinebench_msgs::{PoseSample, Trajectory};
 
     const MS: i64 = 1_000_000;
 

@@ -6,6 +6,8 @@
 //!   errors in fault windows, coverage, and [`metrics::score_source`] bundling them.
 //! - [`map`]: a mapper's cloud against the world's true surfaces (accuracy, completeness,
 //!   chamfer, F-score).
+//! - [`spool`]: trajectories read in passes, from memory or from a file on disk (so a
+//!   long run's memory does not grow with its length).
 //! - [`plots`]: SVG plots of trajectories, errors over time and altitude.
 //! - [`expect`]: the expectation language of scenario files (what must hold for a pass).
 //!
@@ -17,9 +19,11 @@ pub mod loops;
 pub mod map;
 pub mod metrics;
 pub mod plots;
+pub mod spool;
 pub mod tum;
 
 pub use metrics::{SourceScore, score_source};
+pub use spool::{Pose, PoseSpool, Poses, SpoolWriter};
 
 use serde::{Deserialize, Serialize};
 use vinebench_sim::params::{ParamError, require_non_negative, require_positive};

@@ -9,11 +9,12 @@
 //! bucket's minimum and maximum, so spikes stay visible).
 
 use super::metrics::closed_loop;
+use super::spool::Poses;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::Path;
 use thiserror::Error;
-use vinebench_msgs::{Nanos, Trajectory};
+use vinebench_msgs::Nanos;
 
 /// Most points drawn per series.
 pub const MAX_POINTS_PER_SERIES: usize = 4000;
@@ -90,9 +91,9 @@ where
 
 /// Ground truth (black) followed by every source with its colour.
 fn with_truth<'a>(
-    truth: &'a Trajectory,
-    sources: &[(&'a str, &'a Trajectory)],
-) -> Vec<(&'a str, &'a Trajectory, RGBColor)> {
+    truth: &'a dyn Poses,
+    sources: &[(&'a str, &'a dyn Poses)],
+) -> Vec<(&'a str, &'a dyn Poses, RGBColor)> {
     std::iter::once(("ground truth", truth, TRUTH_COLOUR))
         .chain(
             sources
@@ -108,23 +109,32 @@ pub(crate) fn source_colour(i: usize) -> RGBColor {
     SOURCE_COLOURS[i % SOURCE_COLOURS.len()]
 }
 
-/// Thins a series to at most [`MAX_POINTS_PER_SERIES`] points by stride (keeping the last).
-fn thin(points: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
-    if points.len() <= MAX_POINTS_PER_SERIES {
-        return points;
+/// A series of `len` points read as a stream, thinned to at most
+/// [`MAX_POINTS_PER_SERIES`] points by stride (keeping the last).
+fn thin<T: Copy + PartialEq>(len: usize, points: impl Iterator<Item = T>) -> Vec<T> {
+    if len <= MAX_POINTS_PER_SERIES {
+        return points.collect();
     }
-    let stride = points.len().div_ceil(MAX_POINTS_PER_SERIES - 1);
-    let last = points[points.len() - 1];
-    let mut out: Vec<_> = points.into_iter().step_by(stride).collect();
-    if out.last() != Some(&last) {
-        out.push(last);
+    let stride = len.div_ceil(MAX_POINTS_PER_SERIES - 1);
+    let mut out = Vec::with_capacity(MAX_POINTS_PER_SERIES);
+    let mut last = None;
+    for (i, p) in points.enumerate() {
+        if i % stride == 0 {
+            out.push(p);
+        }
+        last = Some(p);
+    }
+    if let Some(l) = last
+        && out.last() != Some(&l)
+    {
+        out.push(l);
     }
     out
 }
 
 /// Thins a time series to at most [`MAX_POINTS_PER_SERIES`] points, keeping each bucket's
-/// smallest and largest value (in time order).
-fn thin_min_max(points: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
+/// smallest and largest `value` (in time order).
+fn thin_min_max<T: Copy>(points: Vec<T>, value: impl Fn(&T) -> f64) -> Vec<T> {
     if points.len() <= MAX_POINTS_PER_SERIES {
         return points;
     }
@@ -134,11 +144,11 @@ fn thin_min_max(points: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
         let lo = chunk
             .iter()
             .enumerate()
-            .min_by(|a, b| a.1.1.total_cmp(&b.1.1));
+            .min_by(|a, b| value(a.1).total_cmp(&value(b.1)));
         let hi = chunk
             .iter()
             .enumerate()
-            .max_by(|a, b| a.1.1.total_cmp(&b.1.1));
+            .max_by(|a, b| value(a.1).total_cmp(&value(b.1)));
         if let (Some((i, &a)), Some((j, &b))) = (lo, hi) {
             match i.cmp(&j) {
                 std::cmp::Ordering::Less => out.extend([a, b]),
@@ -148,6 +158,12 @@ fn thin_min_max(points: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
         }
     }
     out
+}
+
+/// An error series `(stamp, error)` thinned as [`errors_svg`] draws it (each bucket's
+/// smallest and largest error): what a report keeps of a long run's errors.
+pub fn thin_errors(errors: Vec<(Nanos, f64)>) -> Vec<(Nanos, f64)> {
+    thin_min_max(errors, |e| e.1)
 }
 
 /// `[lo, hi]` of the values, padded by [`PAD`]; `[0, 1]` without values, `±1` around a
@@ -212,13 +228,31 @@ fn equal_scale(
 /// The top view (East vs North, equal scale) of the ground truth and the sources, with
 /// start (●) and end (×) markers and a legend, as SVG text.
 pub fn trajectories_svg(
-    truth: &Trajectory,
-    sources: &[(&str, &Trajectory)],
+    truth: &dyn Poses,
+    sources: &[(&str, &dyn Poses)],
+) -> Result<String, PlotError> {
+    trajectories_marked_svg(truth, sources, &[], &[])
+}
+
+/// [`trajectories_svg`] with the vine `rows` (centre lines, world x, y) drawn under the
+/// paths in green, and `marks` (world x, y; e.g. where the robot entered a leaf wall) as
+/// red triangles with a legend entry "canopy intrusion".
+pub fn trajectories_marked_svg(
+    truth: &dyn Poses,
+    sources: &[(&str, &dyn Poses)],
+    rows: &[Vec<(f64, f64)>],
+    marks: &[(f64, f64)],
 ) -> Result<String, PlotError> {
     let caption = "Top view (ENU)";
     let all = with_truth(truth, sources);
-    let xr = padded_range(all.iter().flat_map(|(_, t, _)| t.positions().map(|p| p.x)));
-    let yr = padded_range(all.iter().flat_map(|(_, t, _)| t.positions().map(|p| p.y)));
+    let xr = padded_range(
+        all.iter()
+            .flat_map(|(_, t, _)| t.poses().map(|p| p.1.translation.x)),
+    );
+    let yr = padded_range(
+        all.iter()
+            .flat_map(|(_, t, _)| t.poses().map(|p| p.1.translation.y)),
+    );
     let ((x0, x1), (y0, y1)) = equal_scale(xr, yr, plotting_area_px(caption)?);
 
     let mut svg = String::new();
@@ -234,14 +268,29 @@ pub fn trajectories_svg(
             .y_desc("North (m)")
             .draw()
             .map_err(draw_err)?;
+        let green = RGBColor(120, 180, 90);
+        let inside = |&(x, y): &(f64, f64)| (x0..=x1).contains(&x) && (y0..=y1).contains(&y);
+        for (i, row) in rows.iter().enumerate() {
+            // Only what lies in the view (SVG lines are not clipped to the chart).
+            let points: Vec<(f64, f64)> = row.iter().copied().filter(inside).collect();
+            let series = chart
+                .draw_series(LineSeries::new(points, green.stroke_width(4)))
+                .map_err(draw_err)?;
+            if i == 0 {
+                series.label("vine rows").legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], green.stroke_width(4))
+                });
+            }
+        }
         for &(name, traj, colour) in &all {
-            let points: Vec<(f64, f64)> = traj.positions().map(|p| (p.x, p.y)).collect();
-            let (Some(&start), Some(&end)) = (points.first(), points.last()) else {
+            let xy = |p: crate::scoring::spool::Pose| (p.1.translation.x, p.1.translation.y);
+            let (Some(start), Some(end)) = (traj.first().map(xy), traj.last().map(xy)) else {
                 continue;
             };
+            let points = thin(traj.len(), traj.poses().map(xy));
             let style = colour.stroke_width(2);
             chart
-                .draw_series(LineSeries::new(thin(points), style))
+                .draw_series(LineSeries::new(points, style))
                 .map_err(draw_err)?
                 .label(name)
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
@@ -251,6 +300,18 @@ pub fn trajectories_svg(
             chart
                 .draw_series([Cross::new(end, 7, colour.stroke_width(3))])
                 .map_err(draw_err)?;
+        }
+        if !marks.is_empty() {
+            let red = RGBColor(220, 0, 0);
+            chart
+                .draw_series(
+                    marks
+                        .iter()
+                        .map(|&p| TriangleMarker::new(p, 6, red.filled())),
+                )
+                .map_err(draw_err)?
+                .label("canopy intrusion")
+                .legend(move |(x, y)| TriangleMarker::new((x + 10, y), 6, red.filled()));
         }
         draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
         root.draw(&Text::new(
@@ -319,7 +380,7 @@ pub fn errors_svg(
             let style = source_colour(i).stroke_width(2);
             let points = errs.iter().map(|&(t, e)| (secs_since(t, t0), e)).collect();
             chart
-                .draw_series(LineSeries::new(thin_min_max(points), style))
+                .draw_series(LineSeries::new(thin_min_max(points, |p| p.1), style))
                 .map_err(draw_err)?
                 .label(name)
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
@@ -333,16 +394,22 @@ pub fn errors_svg(
 /// Altitude U over time (s since `t0`) of the ground truth and each source; legend
 /// entries carry each trajectory's σ_U. As SVG text.
 pub fn altitude_svg(
-    truth: &Trajectory,
-    sources: &[(&str, &Trajectory)],
+    truth: &dyn Poses,
+    sources: &[(&str, &dyn Poses)],
     t0: Nanos,
 ) -> Result<String, PlotError> {
     let all = with_truth(truth, sources);
-    let (tx0, tx1) = padded_range(
+    // The time axis spans first to last stamps: no pass needed.
+    let (tx0, tx1) = padded_range(all.iter().flat_map(|(_, t, _)| {
+        [t.first(), t.last()]
+            .into_iter()
+            .flatten()
+            .map(|p| secs_since(p.0, t0))
+    }));
+    let (u0, u1) = padded_range(
         all.iter()
-            .flat_map(|(_, t, _)| t.stamps().map(|s| secs_since(s, t0))),
+            .flat_map(|(_, t, _)| t.poses().map(|p| p.1.translation.z)),
     );
-    let (u0, u1) = padded_range(all.iter().flat_map(|(_, t, _)| t.positions().map(|p| p.z)));
 
     let mut svg = String::new();
     {
@@ -362,13 +429,13 @@ pub fn altitude_svg(
                 continue;
             };
             let style = colour.stroke_width(2);
-            let points = traj
-                .samples
-                .iter()
-                .map(|s| (secs_since(s.stamp, t0), s.world_from_body.translation.z))
-                .collect();
+            let points = thin(
+                traj.len(),
+                traj.poses()
+                    .map(|p| (secs_since(p.0, t0), p.1.translation.z)),
+            );
             chart
-                .draw_series(LineSeries::new(thin(points), style))
+                .draw_series(LineSeries::new(points, style))
                 .map_err(draw_err)?
                 .label(format!("{name} (σU = {:.3} m)", l.sigma_u_m))
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
@@ -389,10 +456,24 @@ fn write(path: &Path, svg: &str) -> Result<(), PlotError> {
 /// Writes [`trajectories_svg`] to `path`.
 pub fn plot_trajectories_svg(
     path: impl AsRef<Path>,
-    truth: &Trajectory,
-    sources: &[(&str, &Trajectory)],
+    truth: &dyn Poses,
+    sources: &[(&str, &dyn Poses)],
 ) -> Result<(), PlotError> {
     write(path.as_ref(), &trajectories_svg(truth, sources)?)
+}
+
+/// Writes [`trajectories_marked_svg`] to `path`.
+pub fn plot_trajectories_marked_svg(
+    path: impl AsRef<Path>,
+    truth: &dyn Poses,
+    sources: &[(&str, &dyn Poses)],
+    rows: &[Vec<(f64, f64)>],
+    marks: &[(f64, f64)],
+) -> Result<(), PlotError> {
+    write(
+        path.as_ref(),
+        &trajectories_marked_svg(truth, sources, rows, marks)?,
+    )
 }
 
 /// Writes [`errors_svg`] to `path`.
@@ -408,8 +489,8 @@ pub fn plot_errors_svg(
 /// Writes [`altitude_svg`] to `path`.
 pub fn plot_altitude_svg(
     path: impl AsRef<Path>,
-    truth: &Trajectory,
-    sources: &[(&str, &Trajectory)],
+    truth: &dyn Poses,
+    sources: &[(&str, &dyn Poses)],
     t0: Nanos,
 ) -> Result<(), PlotError> {
     write(path.as_ref(), &altitude_svg(truth, sources, t0)?)
@@ -419,7 +500,7 @@ pub fn plot_altitude_svg(
 mod tests {
     use super::*;
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
-    use vinebench_msgs::PoseSample;
+    use vinebench_msgs::{PoseSample, Trajectory};
 
     fn loop_traj(n: usize, r: f64, dz: f64) -> Trajectory {
         let mut t = Trajectory::new();
@@ -574,15 +655,22 @@ mod tests {
         let pts: Vec<(f64, f64)> = (0..100_000)
             .map(|k| (k as f64, if k == 31_337 { 9.0 } else { (k % 7) as f64 }))
             .collect();
-        let t = thin(pts.clone());
+        let t = thin(pts.len(), pts.iter().copied());
         assert!(t.len() <= MAX_POINTS_PER_SERIES);
         assert_eq!(t.first(), pts.first());
         assert_eq!(t.last(), pts.last());
-        let m = thin_min_max(pts.clone());
+        let stride = t[1].0 - t[0].0;
+        assert!(
+            t[..t.len() - 1]
+                .windows(2)
+                .all(|w| w[1].0 - w[0].0 == stride)
+        );
+        let m = thin_min_max(pts.clone(), |p| p.1);
         assert!(m.len() <= MAX_POINTS_PER_SERIES);
         assert!(m.contains(&(31_337.0, 9.0)));
         assert!(m.windows(2).all(|w| w[0].0 < w[1].0), "time order kept");
         let short = vec![(0.0, 1.0), (1.0, 2.0)];
-        assert_eq!(thin_min_max(short.clone()), short);
+        assert_eq!(thin_min_max(short.clone(), |p| p.1), short);
+        assert_eq!(thin(short.len(), short.iter().copied()), short);
     }
 }

@@ -21,6 +21,7 @@
 //! bit-for-bit, so `read(write(traj))` returns every stamp, position and quaternion
 //! component bit-exactly (quaternions with `qw < 0` come back negated).
 
+use super::spool::Poses;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use std::fmt::Write as _;
 use std::io;
@@ -154,37 +155,51 @@ pub fn format_tum(traj: &Trajectory) -> String {
     out.push_str(HEADER);
     out.push('\n');
     for s in &traj.samples {
-        let p = s.world_from_body.translation.vector;
-        let q = canonical_quaternion(&s.world_from_body.rotation);
-        out.push_str(&s.stamp.to_secs_string());
-        for x in [p.x, p.y, p.z, q.i, q.j, q.k, q.w] {
-            out.push(' ');
-            push_f64(&mut out, x);
-        }
-        out.push('\n');
+        push_line(&mut out, s.stamp, &s.world_from_body);
     }
     out
 }
 
-/// Writes `traj` as a TUM file (see [`format_tum`]). Refuses (`InvalidInput`) a trajectory
-/// with a non-finite position or quaternion component, which could not be read back.
-pub fn write_tum(path: impl AsRef<Path>, traj: &Trajectory) -> io::Result<()> {
-    let path = path.as_ref();
-    if let Some(bad) = traj.samples.iter().find(|s| {
-        let p = s.world_from_body.translation.vector;
-        let q = s.world_from_body.rotation.coords;
-        !(p.iter().all(|x| x.is_finite()) && q.iter().all(|x| x.is_finite()))
-    }) {
-        return Err(io::Error::new(
-            io::ErrorKind::InvalidInput,
-            format!(
-                "{}: pose at {} has a non-finite component",
-                path.display(),
-                bad.stamp
-            ),
-        ));
+/// One pose line of a TUM file.
+fn push_line(out: &mut String, stamp: Nanos, pose: &Isometry3<f64>) {
+    let p = pose.translation.vector;
+    let q = canonical_quaternion(&pose.rotation);
+    out.push_str(&stamp.to_secs_string());
+    for x in [p.x, p.y, p.z, q.i, q.j, q.k, q.w] {
+        out.push(' ');
+        push_f64(out, x);
     }
-    crate::fsio::write_atomic(path, format_tum(traj).as_bytes())
+    out.push('\n');
+}
+
+/// Writes `poses` as a TUM file (the text of [`format_tum`]), streamed: a long run's
+/// trajectory on disk is never whole in memory. Refuses (`InvalidInput`) a pose with a
+/// non-finite position or quaternion component, which could not be read back; the file
+/// is then left as it was (written whole or not at all).
+pub fn write_tum(path: impl AsRef<Path>, poses: &dyn Poses) -> io::Result<()> {
+    let path = path.as_ref();
+    crate::fsio::write_atomic_with(path, |w| {
+        writeln!(w, "{HEADER}")?;
+        let mut line = String::with_capacity(192);
+        for (stamp, pose) in poses.poses() {
+            let p = pose.translation.vector;
+            let q = pose.rotation.coords;
+            if !(p.iter().all(|x| x.is_finite()) && q.iter().all(|x| x.is_finite())) {
+                return Err(io::Error::new(
+                    io::ErrorKind::InvalidInput,
+                    format!(
+                        "{}: pose at {stamp} has a non-finite component",
+                        path.display()
+                    ),
+                ));
+            }
+            line.clear();
+            push_line(&mut line, stamp, &pose);
+            w.write_all(line.as_bytes())?;
+        }
+        // A pass that a read error ended early must not leave a short file as if whole.
+        poses.check()
+    })
 }
 
 /// Reads a TUM file (see the [module docs](self) for what is accepted).

@@ -42,6 +42,8 @@ pub fn better(metric: &str) -> Option<Better> {
         "map_accuracy_m" | "map_completeness_m" | "map_chamfer_m" => Lower,
         "tracking_losses" | "tracking_lost_s" | "maps_started" | "false_loops" => Lower,
         "collisions" | "max_cross_track_m" | "max_heading_error_deg" => Lower,
+        "canopy_intrusion_s" | "canopy_intrusion_max_m" | "stopped_by_safety" => Lower,
+        "min_clearance_m" => Higher,
         "compare_end_gap_m" | "compare_path_separation_m" => Lower,
         "coverage" | "route_completed" | "loop_recall" => Higher,
         m if m.starts_with("loop_precision") => Higher,

@@ -1065,6 +1065,9 @@ impl Estimator for Eif {
     fn trajectory(&self) -> &Trajectory {
         &self.trajectory
     }
+    fn trajectory_mut(&mut self) -> &mut Trajectory {
+        &mut self.trajectory
+    }
 
     fn stats(&self) -> EstimatorStats {
         self.stats.clone()

@@ -115,6 +115,9 @@ pub trait Estimator {
     fn finish(&mut self);
     /// The trajectory so far (`world_from_body`, body = `base_link`).
     fn trajectory(&self) -> &Trajectory;
+    /// The trajectory, for a consumer that moves settled poses out of it
+    /// ([`Trajectory::drain_settled`]); the estimator reads nothing from it.
+    fn trajectory_mut(&mut self) -> &mut Trajectory;
     /// Input counters.
     fn stats(&self) -> EstimatorStats;
 }

@@ -7,7 +7,7 @@ use super::single_source::{GnssOnly, TrackingCameraOnly};
 use super::{Estimator, EstimatorError, EstimatorStats};
 use std::collections::BTreeMap;
 use vinebench_msgs::geodesy::LocalEnu;
-use vinebench_msgs::{Message, Nanos, StaticTransforms, TimedMessage, Trajectory};
+use vinebench_msgs::{Message, Nanos, PoseSample, StaticTransforms, TimedMessage, Trajectory};
 
 /// Counters of the stage itself (before any estimator sees a message).
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -282,6 +282,37 @@ impl EstimatorSet {
             AnyEstimator::Gnss(e) => e.trajectory(),
             AnyEstimator::TrackingCamera(e) => e.trajectory(),
         })
+    }
+
+    /// The names of the estimators, in run order (as [`EstimatorSet::finish`] returns
+    /// their outputs).
+    pub fn names(&self) -> Vec<&'static str> {
+        self.estimators
+            .iter()
+            .map(|e| match e {
+                AnyEstimator::Eif(e) => e.name(),
+                AnyEstimator::Gnss(e) => e.name(),
+                AnyEstimator::TrackingCamera(e) => e.name(),
+            })
+            .collect()
+    }
+
+    /// Hands every pose the estimators have output so far, except each one's latest, to
+    /// `sink(index in run order, pose)` and forgets them: a runner that streams the
+    /// trajectories to disk calls this as the run goes, so they are not held here. The
+    /// latest pose stays (stamps keep increasing); [`EstimatorSet::finish`] returns the
+    /// rest. A consumer of [`EstimatorSet::trajectory`] (the mapper) must not drain.
+    pub fn drain_poses(&mut self, mut sink: impl FnMut(usize, PoseSample)) {
+        for (i, e) in self.estimators.iter_mut().enumerate() {
+            let t = match e {
+                AnyEstimator::Eif(e) => e.trajectory_mut(),
+                AnyEstimator::Gnss(e) => e.trajectory_mut(),
+                AnyEstimator::TrackingCamera(e) => e.trajectory_mut(),
+            };
+            for s in t.drain_settled() {
+                sink(i, s);
+            }
+        }
     }
 
     /// The stage counters so far.

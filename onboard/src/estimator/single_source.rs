@@ -230,6 +230,9 @@ impl Estimator for GnssOnly {
     fn trajectory(&self) -> &Trajectory {
         &self.trajectory
     }
+    fn trajectory_mut(&mut self) -> &mut Trajectory {
+        &mut self.trajectory
+    }
     fn stats(&self) -> EstimatorStats {
         self.stats.clone()
     }
@@ -423,6 +426,9 @@ impl Estimator for TrackingCameraOnly {
 
     fn trajectory(&self) -> &Trajectory {
         &self.trajectory
+    }
+    fn trajectory_mut(&mut self) -> &mut Trajectory {
+        &mut self.trajectory
     }
 
     fn stats(&self) -> EstimatorStats {

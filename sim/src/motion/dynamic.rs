@@ -43,7 +43,7 @@
 //! for [`TIP_OVER_HOLD_S`] means the robot tipped over: the run ends with
 //! [`MotionOutcome::TippedOver`]. Both make the run fail.
 
-use super::{MotionModel, MotionOutcome};
+use super::{MotionModel, MotionOutcome, Steering};
 use crate::control::{FollowPhase, PlanarState, RouteFollower, TwistCommand};
 use crate::params::{MotionParams, ParamError, PhysicsParams, require_in};
 use crate::physics::{CollisionEvent, Physics};
@@ -229,6 +229,8 @@ pub struct Dynamic<P: Physics> {
     tilted_since: Option<u64>,
     /// Steps of [`TIP_OVER_HOLD_S`].
     tip_hold_steps: u64,
+    /// What the follower steers on (closed loop).
+    steering: Steering,
 }
 
 /// The robot standing on `surface` at `xy` with heading `yaw_rad`: body z along the
@@ -342,6 +344,7 @@ impl<P: Physics> Dynamic<P> {
             divergence: String::new(),
             tilted_since: None,
             tip_hold_steps: (TIP_OVER_HOLD_S / step_s).ceil() as u64,
+            steering: Steering::Truth,
         })
     }
 
@@ -372,12 +375,21 @@ impl<P: Physics> Dynamic<P> {
             self.phase = Phase::Driving;
             self.progress_mark = (self.follower.progress_m(), k);
         }
-        let command = if self.phase == Phase::Driving {
-            let state = PlanarState {
-                xy: g.pose.translation.vector.xy(),
-                yaw_rad: yaw_of(&g.pose),
-                velocity: g.velocity.xy(),
-            };
+        let truth = PlanarState {
+            xy: g.pose.translation.vector.xy(),
+            yaw_rad: yaw_of(&g.pose),
+            velocity: g.velocity.xy(),
+        };
+        // Closed loop: the follower steers on the estimate predicted to this tick; without
+        // one yet, or stopped by the safety layer, the drive gets a zero command.
+        let steer_on = match self.steering {
+            Steering::Truth => Some(truth),
+            Steering::Estimate(fix) => fix.map(|f| f.at(self.time_of(k))),
+            Steering::Stop => None,
+        };
+        let command = if self.phase == Phase::Driving
+            && let Some(state) = steer_on
+        {
             let cmd = self.follower.update(&state);
             let progress = self.follower.progress_m();
             if progress > self.progress_mark.0 + PROGRESS_STEP_M {
@@ -623,6 +635,14 @@ impl<P: Physics> MotionModel for Dynamic<P> {
 
     fn collisions(&self) -> &[CollisionEvent] {
         &self.collisions
+    }
+
+    fn supports_steering(&self) -> bool {
+        true
+    }
+
+    fn set_steering(&mut self, steering: Steering) {
+        self.steering = steering;
     }
 }
 

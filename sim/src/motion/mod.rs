@@ -34,10 +34,12 @@
 //! # Ok::<(), vinebench_sim::params::ParamError>(())
 //! ```
 
+pub mod clearance;
 pub mod dynamic;
 pub mod kinematic;
 pub mod tracking;
 
+pub use clearance::{ClearanceMetrics, Intrusion, RowClearance};
 pub use dynamic::Dynamic;
 pub use kinematic::KinematicSkidSteer;
 pub use tracking::{RobotMetrics, RouteTracking};
@@ -135,5 +137,51 @@ pub trait MotionModel {
     /// Contacts with obstacles so far (none for models without collision geometry).
     fn collisions(&self) -> &[CollisionEvent] {
         &[]
+    }
+    /// True when the model's controller can steer on something other than the truth
+    /// ([`MotionModel::set_steering`]).
+    fn supports_steering(&self) -> bool {
+        false
+    }
+    /// What the controller steers on from the next controller tick on (closed loop). A
+    /// model that does not support it ([`MotionModel::supports_steering`]) ignores it.
+    fn set_steering(&mut self, _steering: Steering) {}
+}
+
+/// What a motion model's route follower steers on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Steering {
+    /// The true planar state (the oracle; the default).
+    Truth,
+    /// An estimate: the latest the robot has, or `None` before the first (the robot then
+    /// waits where it is). The follower predicts it forward to each controller tick
+    /// ([`SteeringFix::at`]).
+    Estimate(Option<SteeringFix>),
+    /// The safety layer stopped the robot: zero command from now on.
+    Stop,
+}
+
+/// A planar pose estimate with its rates, as the follower steers on it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SteeringFix {
+    /// Stamp of the estimate.
+    pub stamp: Nanos,
+    /// Position, heading and horizontal velocity (world).
+    pub state: crate::control::PlanarState,
+    /// Yaw rate, rad/s.
+    pub yaw_rate_radps: f64,
+}
+
+impl SteeringFix {
+    /// The estimate predicted to `t` with constant velocity and yaw rate (what a robot's
+    /// controller does with a pose that is `t − stamp` old).
+    pub fn at(&self, t: Nanos) -> crate::control::PlanarState {
+        let dt = (t - self.stamp).as_secs_f64();
+        let s = &self.state;
+        crate::control::PlanarState {
+            xy: s.xy + s.velocity * dt,
+            yaw_rad: s.yaw_rad + self.yaw_rate_radps * dt,
+            velocity: s.velocity,
+        }
     }
 }
