@@ -56,6 +56,8 @@ fn slope_row_on_mujoco_meets_its_expectations_and_follows_rapier() {
     let theirs: Vec<_> = c.truth.positions().collect();
     let brute = sim
         .truth
+        .to_trajectory()
+        .unwrap()
         .positions()
         .map(|p| {
             theirs
