@@ -112,6 +112,12 @@ pub struct RouteFollower {
     fixed_heading_rad: f64,
 }
 
+/// Heading of a pose: the ENU yaw of its body x axis (projected on the horizontal), rad.
+pub fn heading_rad(pose: &nalgebra::Isometry3<f64>) -> f64 {
+    let x = pose.rotation * nalgebra::Vector3::x();
+    x.y.atan2(x.x)
+}
+
 /// `a − b` wrapped to (−π, π].
 pub fn wrap_angle(a: f64) -> f64 {
     let mut x = a % (2.0 * PI);

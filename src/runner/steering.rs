@@ -36,7 +36,7 @@ use nalgebra::{Matrix2, Vector2};
 use std::collections::VecDeque;
 use vinebench_msgs::{Nanos, PoseSample};
 use vinebench_onboard::estimator::{EstimatorKind, EstimatorSet};
-use vinebench_sim::control::PlanarState;
+use vinebench_sim::control::{PlanarState, heading_rad};
 use vinebench_sim::motion::{MotionModel, Steering, SteeringFix};
 
 /// The robot is considered standing (the run ends after a safety stop) below this
@@ -71,12 +71,6 @@ pub struct SteeringLoop {
     pending: VecDeque<Pending>,
     current: Option<Pending>,
     stop: Option<(Nanos, SteeringStop)>,
-}
-
-/// Heading (ENU yaw of the body x axis) of a pose.
-fn yaw_of(s: &PoseSample) -> f64 {
-    let x = s.world_from_body.rotation * nalgebra::Vector3::x();
-    x.y.atan2(x.x)
 }
 
 /// Horizontal position σ of a pose covariance: the square root of the larger eigenvalue
@@ -128,12 +122,13 @@ impl SteeringLoop {
         }
         self.seen = Some(newest.stamp);
         let xy = newest.world_from_body.translation.vector.xy();
-        let yaw = yaw_of(newest);
+        let yaw = heading_rad(&newest.world_from_body);
         let (velocity, yaw_rate) = match &self.previous {
             Some(p) => {
                 let dt = (newest.stamp - p.stamp).as_secs_f64();
                 let pxy = p.world_from_body.translation.vector.xy();
-                let dyaw = vinebench_sim::control::wrap_angle(yaw - yaw_of(p));
+                let dyaw =
+                    vinebench_sim::control::wrap_angle(yaw - heading_rad(&p.world_from_body));
                 ((xy - pxy) / dt, dyaw / dt)
             }
             None => (Vector2::zeros(), 0.0),

@@ -262,11 +262,6 @@ pub fn static_sinkage_m(robot: &RobotModel, gravity_mps2: f64) -> f64 {
     robot.inertia.mass_kg * gravity_mps2 / k
 }
 
-fn yaw_of(pose: &Isometry3<f64>) -> f64 {
-    let x = pose.rotation * Vector3::x();
-    x.y.atan2(x.x)
-}
-
 impl<P: Physics> Dynamic<P> {
     /// A robot at rest at the start of `route` from time `start`; `make_physics` builds
     /// the backend with the robot at the given start pose (standing on `surface` at its
@@ -377,7 +372,7 @@ impl<P: Physics> Dynamic<P> {
         }
         let truth = PlanarState {
             xy: g.pose.translation.vector.xy(),
-            yaw_rad: yaw_of(&g.pose),
+            yaw_rad: crate::control::heading_rad(&g.pose),
             velocity: g.velocity.xy(),
         };
         // Closed loop: the follower steers on the estimate predicted to this tick; without

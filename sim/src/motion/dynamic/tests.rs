@@ -247,7 +247,9 @@ fn a_strafing_rover_keeps_its_heading_and_comes_back() {
     let yaw_err = d
         .samples
         .iter()
-        .map(|s| (yaw_of(&s.world_from_body) - std::f64::consts::FRAC_PI_2).abs())
+        .map(|s| {
+            (crate::control::heading_rad(&s.world_from_body) - std::f64::consts::FRAC_PI_2).abs()
+        })
         .fold(0.0, f64::max);
     // Sideways all the way: the velocity is along body ±y.
     let sideways = d
