@@ -1013,6 +1013,12 @@ fn run_metadata(sim: &Simulation) -> BTreeMap<String, String> {
         .filter_map(|(name, _)| Some((name.to_string(), format!("{:?}", robot.metric(name)?))))
         .collect();
     m.insert("outcome".to_string(), robot.outcome.to_string());
+    // What the robot steered on and when it was in the leaf walls (closed loop).
+    m.insert("steering".to_string(), sim.steering.clone());
+    m.insert(
+        "canopy_intrusions".to_string(),
+        serde_json::to_string(&sim.clearance.intrusions).unwrap_or_default(),
+    );
     m.insert("world_digest".to_string(), sim.world_digest.clone());
     m.insert("distance_m".to_string(), format!("{:?}", sim.distance_m));
     m.insert("duration_s".to_string(), format!("{:?}", sim.duration_s));
