@@ -161,6 +161,16 @@ impl RowClearance {
         }
     }
 
+    /// Indices of the rows whose centre line lies within `[lo, hi]` across the rows (row
+    /// `i` at offset `i · spacing`): a constant number per query, whatever the row count.
+    fn rows_between(&self, lo: f64, hi: f64) -> std::ops::Range<usize> {
+        let n = self.canopies.len();
+        let spacing = self.layout.spacing_m;
+        let first = (lo / spacing).ceil().clamp(0.0, n as f64) as usize;
+        let end = ((hi / spacing).floor() + 1.0).clamp(0.0, n as f64) as usize;
+        first..end.max(first)
+    }
+
     /// The footprint's corners in the world's horizontal plane.
     fn corners(&self, pose: &Isometry3<f64>) -> [Vector2<f64>; 4] {
         let c = pose.translation.vector.xy();
@@ -195,11 +205,9 @@ impl RowClearance {
                 (a.min(p.1), b.max(p.1))
             });
         let mut best = (0.0, 0);
-        for (row, slots) in self.canopies.iter().enumerate() {
-            let r = self.layout.row_offset_m(row as u32);
-            if o_hi < r - 2.0 * self.max_half_width || o_lo > r + 2.0 * self.max_half_width {
-                continue;
-            }
+        let margin = 2.0 * self.max_half_width;
+        for row in self.rows_between(o_lo - margin, o_hi + margin) {
+            let slots = &self.canopies[row];
             // Slots that start before the footprint ends; those ending before it starts
             // are skipped (slots do not overlap, so they end in the same order).
             let first = slots.partition_point(|c| c.s_hi < s_lo);
@@ -221,11 +229,8 @@ impl RowClearance {
         let reach = self.half_length.hypot(self.half_width) + CLEARANCE_SEARCH_M;
         let inv = pose.inverse();
         let mut best: Option<f64> = None;
-        for (row, elements) in self.elements.iter().enumerate() {
-            let r = self.layout.row_offset_m(row as u32);
-            if (o - r).abs() > reach {
-                continue;
-            }
+        for row in self.rows_between(o - reach, o + reach) {
+            let elements = &self.elements[row];
             let first = elements.partition_point(|e| e.s < s - reach);
             for e in elements[first..].iter().take_while(|e| e.s <= s + reach) {
                 let p = inv * nalgebra::Point3::new(e.centre.x, e.centre.y, pose.translation.z);
