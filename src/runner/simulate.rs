@@ -21,6 +21,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use vinebench_msgs::geodesy::{LocalEnu, normal_gravity};
 use vinebench_msgs::{Nanos, PoseSample, TimedMessage, Trajectory};
 use vinebench_onboard::estimator::{EstimatorError, EstimatorSet, SensorFrames};
+use vinebench_sim::control::heading_rad;
 use vinebench_sim::motion::{
     Dynamic, KinematicSkidSteer, MotionModel, MotionOutcome, RouteTracking, RowClearance,
 };
@@ -84,11 +85,7 @@ fn drive_comparison(
         let gap = (b.world_from_body.translation.vector - a.translation.vector)
             .xy()
             .norm();
-        let heading = |q: &nalgebra::UnitQuaternion<f64>| {
-            let x = q * nalgebra::Vector3::x();
-            x.y.atan2(x.x)
-        };
-        let d = heading(&b.world_from_body.rotation) - heading(&a.rotation);
+        let d = heading_rad(&b.world_from_body) - heading_rad(&a);
         let wrapped =
             -(-d + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) + std::f64::consts::PI;
         (gap, wrapped.to_degrees())

@@ -14,6 +14,7 @@
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 use vinebench_msgs::{Nanos, Trajectory};
+use vinebench_sim::control::heading_rad;
 
 use vinebench_onboard::slam::loop_closing::{LoopClosure, LoopSource};
 
@@ -96,12 +97,6 @@ impl LoopScore {
     }
 }
 
-/// Yaw of a pose (rotation about `world` z of its x axis), rad.
-fn yaw(p: &Isometry3<f64>) -> f64 {
-    let x = p.rotation * nalgebra::Vector3::x();
-    x.y.atan2(x.x)
-}
-
 /// Absolute difference of two angles, deg in [0, 180].
 fn angle_diff_deg(a: f64, b: f64) -> f64 {
     let d = (a - b).rem_euclid(std::f64::consts::TAU);
@@ -131,7 +126,7 @@ pub fn revisits(truth: &Trajectory, th: &LoopThresholds) -> Vec<(Nanos, Nanos)> 
         let revisit = samples[..i].iter().any(|(_, q, sq)| {
             s - sq >= th.revisit_min_path_m
                 && (p.translation.vector - q.translation.vector).norm() <= th.distance_m
-                && angle_diff_deg(yaw(p), yaw(q)) <= th.heading_deg
+                && angle_diff_deg(heading_rad(p), heading_rad(q)) <= th.heading_deg
         });
         open = match (open, revisit) {
             (None, true) => Some((*t, *t)),
@@ -159,7 +154,7 @@ pub fn score_loops(loops: &[LoopClosure], truth: &Trajectory, th: &LoopThreshold
             let (d, h) = match poses {
                 (Some(a), Some(b)) => (
                     (a.translation.vector - b.translation.vector).norm(),
-                    angle_diff_deg(yaw(&a), yaw(&b)),
+                    angle_diff_deg(heading_rad(&a), heading_rad(&b)),
                 ),
                 _ => (f64::NAN, f64::NAN),
             };
@@ -168,7 +163,7 @@ pub fn score_loops(loops: &[LoopClosure], truth: &Trajectory, th: &LoopThreshold
                     let error = claim.inverse() * (m.inverse() * q);
                     (
                         error.translation.vector.norm(),
-                        angle_diff_deg(yaw(&error), 0.0),
+                        angle_diff_deg(heading_rad(&error), 0.0),
                     )
                 }
                 _ => (f64::NAN, f64::NAN),

@@ -38,7 +38,7 @@
 //! - `max_tilt_deg`: the largest angle between the body z axis and the world z axis.
 //! - `distance_m`: the odometer (path length of the body origin) at the last sample.
 
-use crate::control::{target_heading_rad, wrap_angle};
+use crate::control::{heading_rad, target_heading_rad, wrap_angle};
 use crate::motion::kinematic::PROGRESS_WINDOW_M;
 use crate::params::HeadingMode;
 use crate::route::Route;
@@ -162,7 +162,6 @@ impl RouteTracking {
         }
 
         let heading_error_deg = (speed > MOVING_MPS).then(|| {
-            let x_b = pose.rotation * Vector3::x();
             let target = target_heading_rad(
                 &self.route,
                 self.on_leg(self.progress_m),
@@ -170,7 +169,7 @@ impl RouteTracking {
                 self.mode,
                 self.offset_rad,
             );
-            wrap_angle(x_b.y.atan2(x_b.x) - target).abs().to_degrees()
+            wrap_angle(heading_rad(pose) - target).abs().to_degrees()
         });
         let z_b = pose.rotation * Vector3::z();
         let tilt = z_b.x.hypot(z_b.y).atan2(z_b.z).to_degrees();
