@@ -377,21 +377,21 @@ impl LoadedScenario {
             ));
         }
         let c = &s.control;
-        if let Some(src) = c.source()
-            && !s.estimators.run.iter().any(|k| k.name() == src)
-        {
-            let runs: Vec<&str> = s.estimators.run.iter().map(|k| k.name()).collect();
-            return Err(self.field_error(
-                "control.localization",
-                format!(
-                    "\"truth\" or an estimate source of [estimators] run ({runs:?}), found {src:?}{}",
-                    if src.starts_with("slam") {
-                        " (SLAM sources cannot steer yet: only the estimators' sources can)"
-                    } else {
-                        ""
-                    }
-                ),
-            ));
+        if let Some(src) = c.source() {
+            let mut sources: Vec<&str> = s.estimators.run.iter().map(|k| k.name()).collect();
+            if s.slam.enabled {
+                sources.extend(s.slam.runs().iter().map(|(name, _)| *name));
+            }
+            if !sources.contains(&src) {
+                return Err(self.field_error(
+                    "control.localization",
+                    format!(
+                        "\"truth\" or an estimate source of the run ({sources:?}: [estimators] \
+                         run, and the SLAM and its baselines when [slam] is enabled), found \
+                         {src:?}"
+                    ),
+                ));
+            }
         }
         for (key, v, lo, hi) in [
             (
@@ -762,7 +762,8 @@ pub struct MappingParams {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ControlParams {
-    /// `"truth"` or an estimate source of `[estimators] run`.
+    /// `"truth"` or an estimate source of the run (`[estimators] run`, the SLAM and its
+    /// baselines).
     pub localization: String,
     /// Processing time between a message's arrival and the pose it gives, ms.
     pub estimate_latency_ms: f64,
@@ -773,6 +774,9 @@ pub struct ControlParams {
     /// A known error (east, north) added to every steering estimate, m: what a biased
     /// localization (a wrong antenna lever arm, a shifted base station) does to the vines.
     pub estimate_offset_m: [f64; 2],
+    /// Stop when the steering source reports tracking lost (a SLAM's lost frame or map
+    /// restart).
+    pub stop_on_tracking_lost: bool,
 }
 
 impl ControlParams {

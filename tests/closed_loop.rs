@@ -3,7 +3,9 @@
 //! - A constant offset added to the steering estimate moves the true path by minus that
 //!   offset (closed form: the follower puts the *estimate* on the route).
 //! - A steering source that goes silent stops the robot within the stated age.
-//! - Runs with an estimate in the loop are bit-identical across thread counts.
+//! - Runs with an estimate in the loop are bit-identical across thread counts, the
+//!   pipelined visual SLAM in the loop included; a SLAM that loses track stops the robot
+//!   once its lost frame is available (arrival + latency).
 //!
 //! (The default, `localization = "truth"`, keeps today's trajectories: the golden digest
 //! of tests/determinism.rs.)
@@ -136,4 +138,57 @@ fn closed_loop_needs_a_physics_model_and_a_source_of_the_run() {
         e.contains("control.localization") && e.contains("SLAM"),
         "{e}"
     );
+    // With [slam] on, its sources steer, but only those the run has.
+    let e = LoadedScenario::from_str(
+        &short_loop("[control]\nlocalization = \"slam_single_camera\"\n[slam]\nenabled = true\n"),
+        "s.toml",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("control.localization") && e.contains("\"slam\""),
+        "{e}"
+    );
+}
+
+#[test]
+fn slam_in_the_loop_is_bit_identical_across_thread_counts_and_stops_when_lost() {
+    // The rover steered on the single-camera SLAM loses track as the carton box fills
+    // its view; the multi-camera SLAM runs beside it (pipelined, with tag loops).
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenarios/closed-loop-box-occluder-single.toml");
+    let dir = tempfile::tempdir().unwrap();
+    for threads in ["1", "2"] {
+        // Exit 0: the scenario's own expectations hold (it stops, no collision).
+        Command::cargo_bin("vinebench")
+            .unwrap()
+            .args(["--threads", threads, "run", "--quiet", "--out"])
+            .arg(dir.path().join(threads))
+            .arg(&scenario)
+            .assert()
+            .code(0);
+    }
+    for f in [
+        "ground_truth.tum",
+        "estimate_slam_single_camera.tum",
+        "estimate_slam.tum",
+        "report.json",
+    ] {
+        assert_eq!(
+            std::fs::read(dir.path().join("1").join(f)).unwrap(),
+            std::fs::read(dir.path().join("2").join(f)).unwrap(),
+            "{f} differs between 1 and 2 threads"
+        );
+    }
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("1").join("report.json")).unwrap())
+            .unwrap();
+    let outcome = &report["robot"]["outcome"];
+    assert_eq!(outcome["kind"], "stopped_estimate_lost", "{outcome}");
+    assert_eq!(outcome["tracking_lost"], true, "{outcome}");
+    // The lost frame's images arrive 30 ms after their stamp (the cameras' latency_ms),
+    // the robot has the report 20 ms later (estimate_latency_ms), and the stop comes at
+    // the first step after that (steps are at most 5 ms apart).
+    let age_s = outcome["age_s"].as_f64().unwrap();
+    assert!((0.05..0.055).contains(&age_s), "{outcome}");
 }

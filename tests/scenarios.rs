@@ -108,6 +108,12 @@ fn closed_loop_on_gnss_alone_leaves_its_lane() {
 }
 
 #[test]
+fn closed_loop_on_the_multi_camera_slam_passes_the_box() {
+    // (The single-camera variant, which stops at the box, runs in tests/closed_loop.rs.)
+    check("closed-loop-box-occluder.toml");
+}
+
+#[test]
 fn closed_loop_poor_gnss_meets_its_expectations() {
     check("closed-loop-poor-gnss.toml");
 }

@@ -140,6 +140,9 @@ pub struct Simulation {
     pub steering: String,
     /// When the safety layer of a closed-loop run stopped the robot, and why.
     pub steering_stop: Option<SteeringStop>,
+    /// A steering SLAM's map in the world (`world_from_map`, from the start pose): the
+    /// path the robot believed is the SLAM's trajectory through it.
+    pub steering_world_from_map: Option<nalgebra::Isometry3<f64>>,
     /// Canopy intrusion and clearance to posts and trunks, from the truth.
     pub clearance: vinebench_sim::motion::ClearanceMetrics,
     /// Start of the run.
@@ -152,12 +155,15 @@ pub struct Simulation {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum SteeringStop {
-    /// The steering source had given nothing newer than `max_estimate_age_ms`.
+    /// The steering source had given nothing newer than `max_estimate_age_ms`, or (with
+    /// `stop_on_tracking_lost`) reported tracking lost.
     EstimateLost {
         /// When the stop was decided, s after the start.
         at_s: f64,
-        /// Age of the newest estimate then, s (infinite: none at all).
+        /// Age of the newest estimate (or lost report) then, s (infinite: none at all).
         age_s: f64,
+        /// The source reported tracking lost.
+        tracking_lost: bool,
     },
     /// The steering estimate's horizontal position σ exceeded `max_position_sigma_m`.
     Uncertain {
@@ -207,7 +213,8 @@ pub enum TimeLimit {
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum RobotOutcome {
     /// Closed loop: the safety layer stopped the robot because its steering estimate was
-    /// older than `[control] max_estimate_age_ms` (or there was none).
+    /// older than `[control] max_estimate_age_ms` (or there was none), or because the
+    /// source reported tracking lost (`[control] stop_on_tracking_lost`).
     StoppedEstimateLost {
         /// End of the run (the robot standing), s after the start.
         at_s: f64,
@@ -215,8 +222,10 @@ pub enum RobotOutcome {
         stopped_at_s: f64,
         /// Arc length reached along the route, m.
         progress_m: f64,
-        /// Age of the newest estimate at the stop, s.
+        /// Age of the newest estimate (or lost report) at the stop, s.
         age_s: f64,
+        /// The source reported tracking lost.
+        tracking_lost: bool,
     },
     /// Closed loop: the safety layer stopped the robot because its steering estimate's
     /// position σ exceeded `[control] max_position_sigma_m`.
@@ -317,11 +326,23 @@ impl fmt::Display for RobotOutcome {
                 stopped_at_s,
                 progress_m,
                 age_s,
-            } => write!(
-                f,
-                "stopped_estimate_lost at {stopped_at_s:.1} s after {progress_m:.1} m: the \
-                 steering estimate was {age_s:.2} s old (run ended at {at_s:.1} s)"
-            ),
+                tracking_lost,
+            } => {
+                if *tracking_lost {
+                    write!(
+                        f,
+                        "stopped_estimate_lost at {stopped_at_s:.1} s after {progress_m:.1} m: \
+                         the steering source reported tracking lost {age_s:.2} s before (run \
+                         ended at {at_s:.1} s)"
+                    )
+                } else {
+                    write!(
+                        f,
+                        "stopped_estimate_lost at {stopped_at_s:.1} s after {progress_m:.1} m: \
+                         the steering estimate was {age_s:.2} s old (run ended at {at_s:.1} s)"
+                    )
+                }
+            }
             RobotOutcome::StoppedUncertain {
                 at_s,
                 stopped_at_s,
@@ -453,14 +474,20 @@ impl RobotReport {
                 progress_m,
             },
             MotionOutcome::Running => match (&sim.steering_stop, sim.stopped_by) {
-                (Some(SteeringStop::EstimateLost { at_s: t, age_s }), _) => {
-                    RobotOutcome::StoppedEstimateLost {
-                        at_s,
-                        stopped_at_s: *t,
-                        progress_m,
-                        age_s: *age_s,
-                    }
-                }
+                (
+                    Some(SteeringStop::EstimateLost {
+                        at_s: t,
+                        age_s,
+                        tracking_lost,
+                    }),
+                    _,
+                ) => RobotOutcome::StoppedEstimateLost {
+                    at_s,
+                    stopped_at_s: *t,
+                    progress_m,
+                    age_s: *age_s,
+                    tracking_lost: *tracking_lost,
+                },
                 (Some(SteeringStop::Uncertain { at_s: t, sigma_m }), _) => {
                     RobotOutcome::StoppedUncertain {
                         at_s,

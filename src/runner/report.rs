@@ -651,13 +651,25 @@ pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunErr
         .iter()
         .map(|e| (e.name, &e.poses as &dyn Poses))
         .collect();
-    // Closed loop: the steering source is the path the robot believed it drove.
+    // Closed loop: the steering source is the path the robot believed it drove (a
+    // SLAM's in the world through its known start pose).
     let believed = format!("{} (steered on)", sim.steering);
+    let moved = named
+        .iter()
+        .find(|(n, _)| *n == sim.steering)
+        .zip(sim.steering_world_from_map)
+        .map(|(&(_, poses), world_from_map)| scoring::spool::Moved {
+            poses,
+            world_from_map,
+        });
     let top_named: Vec<(&str, &dyn Poses)> = named
         .iter()
         .map(|&(n, p)| {
             if n == sim.steering {
-                (believed.as_str(), p)
+                (
+                    believed.as_str(),
+                    moved.as_ref().map_or(p, |m| m as &dyn Poses),
+                )
             } else {
                 (n, p)
             }

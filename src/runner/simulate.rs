@@ -7,7 +7,7 @@ use super::outcome::{
     Estimate, MotionComparison, RobotReport, RunError, Simulation, TimeLimit, io_err,
 };
 use crate::recording::{self, RecordItem, Recorder};
-use crate::runner::steering::{self, SteeringLoop};
+use crate::runner::steering::{self, SteeringLoop, SteeringSource};
 use crate::scenario::{LoadedScenario, ScenarioError};
 use crate::scoring::expect::ROBOT_METRICS;
 use crate::scoring::{Poses, SpoolWriter};
@@ -631,17 +631,16 @@ pub fn simulate_setup(
     let mut steering = match s.control.source() {
         None => None,
         Some(src) => {
-            let kind = s
-                .estimators
-                .run
-                .iter()
-                .copied()
-                .find(|k| k.name() == src)
-                .ok_or_else(|| {
-                    sc.field_error("control.localization", "an estimate source of the run")
-                })?;
+            let source = match s.estimators.run.iter().copied().find(|k| k.name() == src) {
+                Some(kind) => SteeringSource::Estimator(kind),
+                None => {
+                    SteeringSource::Slam(slam.iter().position(|v| v.source() == src).ok_or_else(
+                        || sc.field_error("control.localization", "an estimate source of the run"),
+                    )?)
+                }
+            };
             let drive_start = start + Nanos::from_secs_f64(s.motion.still_before_s);
-            Some(SteeringLoop::new(&s.control, kind, start, drive_start))
+            Some(SteeringLoop::new(&s.control, source, start, drive_start))
         }
     };
     let mut steering_stop = None;
@@ -738,6 +737,11 @@ pub fn simulate_setup(
             steering_stop = Some(stop);
         }
         let state = motion.advance_to(t);
+        if let Some(st) = &mut steering {
+            // Where the robot was placed (the first call counts): a SLAM's map is
+            // anchored there.
+            st.place(&state.world_from_body);
+        }
         last_t = t;
         last_odometer = state.odometer_m;
         if t == gt_time(gt_index) {
@@ -785,7 +789,7 @@ pub fn simulate_setup(
             }
         }
         if let Some(st) = &mut steering {
-            st.observe(t, &estimators);
+            st.observe(t, &estimators, &mut slam);
             // After a safety stop the run ends once the robot stands.
             if let Some(at) = st.stopped_at() {
                 let v = state.velocity_in_world;
@@ -862,6 +866,7 @@ pub fn simulate_setup(
         mapping,
         steering: s.control.localization.clone(),
         steering_stop,
+        steering_world_from_map: steering.as_ref().and_then(SteeringLoop::world_from_map),
         start,
         row_lines: (0..world.layout.count)
             .map(|r| {

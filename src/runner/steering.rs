@@ -11,12 +11,22 @@
 //! stamps, arrival times and the modelled latency only, never by how fast this machine
 //! computed anything, so a closed-loop run is as deterministic as an open-loop one.
 //!
+//! A visual SLAM (`slam`, `slam_single_camera`, ...) steers with the pose each rig frame
+//! was tracked at (before any later optimisation: what the robot had then). The frame is
+//! tracked as soon as its images have arrived ([`VisualSlam::track_waiting`]; the
+//! pipelined SLAM would otherwise track it alongside the next image), so its pose too is
+//! available at arrival + latency, whatever this machine's speed.
+//!
 //! **Frames.** The estimators' outputs are `world_from_body` in the world's ENU frame:
 //! the EIF and the GNSS source work in the local ENU frame of the scenario's `[origin]`,
 //! the tracking camera is anchored on the GNSS pose at its first fix. The route is given
 //! in world coordinates, i.e. surveyed in that same ENU frame, as a robot would have its
-//! rows mapped with RTK GNSS. (A source in another frame would need the route expressed
-//! in it; none of the estimators has one.)
+//! rows mapped with RTK GNSS. A SLAM's map starts at the body pose of its first frame; the
+//! robot knows where it was placed (a surveyed start marker: the pose at the run's start,
+//! [`SteeringLoop::place`]), so `world_from_map = world_from_start · map_from_body⁻¹` of
+//! that first frame, provided the robot had not set off yet. A SLAM whose first map
+//! starts later has no known place in the world: the robot never drives on it (and stops
+//! by the age rule).
 //!
 //! `estimate_offset_m` adds a known error to every steering estimate (for experiments on
 //! localization bias).
@@ -24,7 +34,10 @@
 //! **Safety layer.** The robot is stopped (zero command; the run ends when it stands) when
 //! the newest available estimate is older than `max_estimate_age_ms` at a tick after
 //! the route's start (also when there has been none by then), giving
-//! [`SteeringStop::EstimateLost`]; or, with `max_position_sigma_m > 0`, when its
+//! [`SteeringStop::EstimateLost`]; with `stop_on_tracking_lost`, when the source reports
+//! tracking lost (a SLAM frame not tracked, or a map restarted after a loss at a
+//! dead-reckoned pose), once that report is available: the same outcome, marked
+//! `tracking_lost`; or, with `max_position_sigma_m > 0`, when its
 //! reported horizontal position σ (the larger axis of the 2×2 position covariance)
 //! exceeds the bound: [`SteeringStop::Uncertain`]. A source without covariance is never
 //! stopped by the second rule: an over-confident filter keeps driving, which is the
@@ -32,10 +45,12 @@
 
 use super::outcome::SteeringStop;
 use crate::scenario::ControlParams;
-use nalgebra::{Matrix2, Vector2};
+use nalgebra::{Isometry3, Matrix2, Vector2};
 use std::collections::VecDeque;
 use vinebench_msgs::{Nanos, PoseSample};
 use vinebench_onboard::estimator::{EstimatorKind, EstimatorSet};
+use vinebench_onboard::slam::VisualSlam;
+use vinebench_onboard::slam::tracking::TrackingState;
 use vinebench_sim::control::{PlanarState, heading_rad};
 use vinebench_sim::motion::{MotionModel, Steering, SteeringFix};
 
@@ -45,29 +60,56 @@ pub const STANDING_MPS: f64 = 0.01;
 /// A safety stop ends the run at the latest this long after it was decided, s.
 pub const STOP_SETTLE_S: f64 = 10.0;
 
-/// A pose the robot will have, from when.
+/// What the follower steers on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SteeringSource {
+    /// An estimator's output (`eif`, `gnss`, `tracking_camera`).
+    Estimator(EstimatorKind),
+    /// The run's visual SLAM number `.0` (the SLAM or one of its baselines).
+    Slam(usize),
+}
+
+/// What the robot will have, from when.
 #[derive(Clone, Copy, Debug)]
 struct Pending {
     available: Nanos,
-    fix: SteeringFix,
+    /// Stamp of the estimate.
+    stamp: Nanos,
+    /// The pose (`None`: the source reported tracking lost).
+    fix: Option<SteeringFix>,
     sigma_m: Option<f64>,
+}
+
+/// Where a SLAM's map lies in the world.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum MapPlace {
+    /// No map yet.
+    Unknown,
+    /// `world_from_map`, from the start pose.
+    Placed(Isometry3<f64>),
+    /// The first map started after the robot had set off.
+    Unplaced,
 }
 
 /// The closed loop of one run: which estimate the follower steers on, and when the
 /// safety layer stops the robot. See the module documentation.
 #[derive(Debug)]
 pub struct SteeringLoop {
-    kind: EstimatorKind,
+    source: SteeringSource,
     latency: Nanos,
     max_age: Nanos,
     max_sigma_m: f64,
+    stop_on_lost: bool,
     offset: Vector2<f64>,
     start: Nanos,
     drive_start: Nanos,
-    /// Stamp of the newest pose seen from the source.
+    /// The robot's pose at the start of the run (where it was placed).
+    world_from_start: Option<Isometry3<f64>>,
+    map: MapPlace,
+    /// Stamp of the newest estimate seen from the source.
     seen: Option<Nanos>,
-    /// The previous pose seen (for velocity and yaw rate).
-    previous: Option<PoseSample>,
+    /// The previous pose seen (stamp, `world_from_body`; for velocity and yaw rate).
+    previous: Option<(Nanos, Isometry3<f64>)>,
     pending: VecDeque<Pending>,
     current: Option<Pending>,
     stop: Option<(Nanos, SteeringStop)>,
@@ -84,22 +126,25 @@ pub fn horizontal_sigma_m(s: &PoseSample) -> Option<f64> {
 }
 
 impl SteeringLoop {
-    /// The closed loop of `[control]` (`None` for `localization = "truth"`): `kind` is
+    /// The closed loop of `[control]` (`None` for `localization = "truth"`): `source` is
     /// the steering source; the route starts at `drive_start`.
     pub fn new(
         p: &ControlParams,
-        kind: EstimatorKind,
+        source: SteeringSource,
         start: Nanos,
         drive_start: Nanos,
     ) -> SteeringLoop {
         SteeringLoop {
-            kind,
+            source,
             latency: Nanos::from_secs_f64(p.estimate_latency_ms / 1e3),
             max_age: Nanos::from_secs_f64(p.max_estimate_age_ms / 1e3),
             max_sigma_m: p.max_position_sigma_m,
+            stop_on_lost: p.stop_on_tracking_lost,
             offset: Vector2::new(p.estimate_offset_m[0], p.estimate_offset_m[1]),
             start,
             drive_start,
+            world_from_start: None,
+            map: MapPlace::Unknown,
             seen: None,
             previous: None,
             pending: VecDeque::new(),
@@ -108,45 +153,107 @@ impl SteeringLoop {
         }
     }
 
-    /// After the messages that arrived by `t` were delivered: the source's newest pose, if
-    /// new, becomes available at `t + latency`.
-    pub fn observe(&mut self, t: Nanos, estimators: &EstimatorSet) {
-        let Some(newest) = estimators
-            .trajectory(self.kind)
-            .and_then(|tr| tr.samples.last())
-        else {
-            return;
+    /// The robot's pose at the start of the run, where it was placed (the first call
+    /// counts): what anchors a SLAM's map in the world.
+    pub fn place(&mut self, world_from_body: &Isometry3<f64>) {
+        self.world_from_start.get_or_insert(*world_from_body);
+    }
+
+    /// `world_from_map` of a steering SLAM whose map was placed in the world.
+    pub fn world_from_map(&self) -> Option<Isometry3<f64>> {
+        match self.map {
+            MapPlace::Placed(p) => Some(p),
+            _ => None,
+        }
+    }
+
+    /// After the messages that arrived by `t` were delivered: the source's newest
+    /// estimate, if new, becomes available at `t + latency`. A steering SLAM first tracks
+    /// the frame its images completed.
+    pub fn observe(&mut self, t: Nanos, estimators: &EstimatorSet, slam: &mut [VisualSlam]) {
+        let (stamp, pose, sigma_m) = match self.source {
+            SteeringSource::Estimator(kind) => {
+                let Some(newest) = estimators.trajectory(kind).and_then(|tr| tr.samples.last())
+                else {
+                    return;
+                };
+                (
+                    newest.stamp,
+                    Some(newest.world_from_body),
+                    horizontal_sigma_m(newest),
+                )
+            }
+            SteeringSource::Slam(i) => {
+                let Some(v) = slam.get_mut(i) else {
+                    return;
+                };
+                v.track_waiting();
+                let Some(f) = v.last_frame() else {
+                    return;
+                };
+                if self.seen.is_some_and(|s| f.stamp <= s) {
+                    return;
+                }
+                let lost = f.state == TrackingState::Lost
+                    || (f.initialized && self.map != MapPlace::Unknown);
+                let (stamp, pose) = (f.stamp, f.world_from_body);
+                match (self.map, pose) {
+                    (MapPlace::Unknown, Some(map_from_body)) => {
+                        self.map = match self.world_from_start {
+                            Some(w) if stamp <= self.drive_start => {
+                                MapPlace::Placed(w * map_from_body.inverse())
+                            }
+                            _ => MapPlace::Unplaced,
+                        };
+                    }
+                    (MapPlace::Unknown, None) => return,
+                    _ => {}
+                }
+                let MapPlace::Placed(world_from_map) = self.map else {
+                    return;
+                };
+                if lost && self.stop_on_lost {
+                    (stamp, None, None)
+                } else if let Some(p) = pose {
+                    (stamp, Some(world_from_map * p), None)
+                } else {
+                    return;
+                }
+            }
         };
-        if self.seen.is_some_and(|s| newest.stamp <= s) {
+        if self.seen.is_some_and(|s| stamp <= s) {
             return;
         }
-        self.seen = Some(newest.stamp);
-        let xy = newest.world_from_body.translation.vector.xy();
-        let yaw = heading_rad(&newest.world_from_body);
-        let (velocity, yaw_rate) = match &self.previous {
-            Some(p) => {
-                let dt = (newest.stamp - p.stamp).as_secs_f64();
-                let pxy = p.world_from_body.translation.vector.xy();
-                let dyaw =
-                    vinebench_sim::control::wrap_angle(yaw - heading_rad(&p.world_from_body));
-                ((xy - pxy) / dt, dyaw / dt)
-            }
-            None => (Vector2::zeros(), 0.0),
-        };
-        self.pending.push_back(Pending {
-            available: t + self.latency,
-            fix: SteeringFix {
-                stamp: newest.stamp,
+        self.seen = Some(stamp);
+        let fix = pose.map(|pose| {
+            let xy = pose.translation.vector.xy();
+            let yaw = heading_rad(&pose);
+            let (velocity, yaw_rate) = match &self.previous {
+                Some((pt, p)) => {
+                    let dt = (stamp - *pt).as_secs_f64();
+                    let pxy = p.translation.vector.xy();
+                    let dyaw = vinebench_sim::control::wrap_angle(yaw - heading_rad(p));
+                    ((xy - pxy) / dt, dyaw / dt)
+                }
+                None => (Vector2::zeros(), 0.0),
+            };
+            self.previous = Some((stamp, pose));
+            SteeringFix {
+                stamp,
                 state: PlanarState {
                     xy: xy + self.offset,
                     yaw_rad: yaw,
                     velocity,
                 },
                 yaw_rate_radps: yaw_rate,
-            },
-            sigma_m: horizontal_sigma_m(newest),
+            }
         });
-        self.previous = Some(newest.clone());
+        self.pending.push_back(Pending {
+            available: t + self.latency,
+            stamp,
+            fix,
+            sigma_m,
+        });
     }
 
     /// Before the motion advances past `t`: hands the follower what the robot has at `t`,
@@ -167,10 +274,19 @@ impl SteeringLoop {
                 None if t - self.drive_start > self.max_age => Some(SteeringStop::EstimateLost {
                     at_s,
                     age_s: f64::INFINITY,
+                    tracking_lost: false,
                 }),
-                Some(c) if t - c.fix.stamp > self.max_age => Some(SteeringStop::EstimateLost {
+                Some(Pending {
+                    stamp, fix: None, ..
+                }) => Some(SteeringStop::EstimateLost {
                     at_s,
-                    age_s: (t - c.fix.stamp).as_secs_f64(),
+                    age_s: (t - stamp).as_secs_f64(),
+                    tracking_lost: true,
+                }),
+                Some(c) if t - c.stamp > self.max_age => Some(SteeringStop::EstimateLost {
+                    at_s,
+                    age_s: (t - c.stamp).as_secs_f64(),
+                    tracking_lost: false,
                 }),
                 Some(Pending {
                     sigma_m: Some(sigma_m),
@@ -186,7 +302,7 @@ impl SteeringLoop {
             motion.set_steering(Steering::Stop);
             return Some(stop);
         }
-        motion.set_steering(Steering::Estimate(self.current.map(|c| c.fix)));
+        motion.set_steering(Steering::Estimate(self.current.and_then(|c| c.fix)));
         None
     }
 

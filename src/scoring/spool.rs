@@ -62,6 +62,39 @@ impl Poses for Trajectory {
     }
 }
 
+/// Poses seen through a fixed transform: `(stamp, world_from_map · map_from_body)` for
+/// each pose of `poses` (e.g. a SLAM trajectory put in the world by its known start).
+pub struct Moved<'a> {
+    /// The poses, in their own frame.
+    pub poses: &'a dyn Poses,
+    /// The transform applied on the left of each.
+    pub world_from_map: nalgebra::Isometry3<f64>,
+}
+
+impl Poses for Moved<'_> {
+    fn len(&self) -> usize {
+        self.poses.len()
+    }
+    fn poses(&self) -> Box<dyn Iterator<Item = Pose> + '_> {
+        Box::new(
+            self.poses
+                .poses()
+                .map(|(t, p)| (t, self.world_from_map * p)),
+        )
+    }
+    fn first(&self) -> Option<Pose> {
+        self.poses
+            .first()
+            .map(|(t, p)| (t, self.world_from_map * p))
+    }
+    fn last(&self) -> Option<Pose> {
+        self.poses.last().map(|(t, p)| (t, self.world_from_map * p))
+    }
+    fn check(&self) -> io::Result<()> {
+        self.poses.check()
+    }
+}
+
 /// Bytes of a record without covariance: tag, stamp, translation, quaternion.
 const BASE_BYTES: usize = 1 + 8 + 7 * 8;
 /// Bytes of a record with covariance (36 `f64`, column-major).

@@ -464,6 +464,17 @@ impl VisualSlam {
         self.tracker.as_ref()
     }
 
+    /// The estimate source this SLAM produces (`slam`, `slam_single_camera`, ...).
+    pub fn source(&self) -> &'static str {
+        self.source
+    }
+
+    /// The outcome of the newest tracked rig frame (its pose as tracked then, before any
+    /// later optimisation), if any.
+    pub fn last_frame(&self) -> Option<&FrameResult> {
+        self.frames.last()
+    }
+
     /// Takes one delivered message (others than the SLAM's are ignored).
     pub fn push(&mut self, msg: &Message) -> Result<(), SlamError> {
         match msg {
@@ -622,8 +633,12 @@ impl VisualSlam {
         }
     }
 
-    /// Tracks the rig frame waiting in the pipeline, if any.
-    fn flush(&mut self) {
+    /// Tracks the rig frame waiting in the pipeline now, if any (with
+    /// [`SlamConfig::pipeline`] it would otherwise be tracked alongside the next image).
+    /// The results are the same either way: only the overlap with the next image's
+    /// feature extraction is lost. A closed loop steering on this SLAM calls it after
+    /// every delivery, so that a frame's pose exists when its images have arrived.
+    pub fn track_waiting(&mut self) {
         let (tracked, ()) = track_during(self.tracker.as_mut(), self.pending.take(), || ());
         self.tracked(tracked);
     }
@@ -695,10 +710,10 @@ impl VisualSlam {
             }
         }
         // The previous frame is always tracked by now (every image tracks it alongside).
-        self.flush();
+        self.track_waiting();
         self.pending = Some(RigFrame { stamp, pairs });
         if !self.cfg.pipeline {
-            self.flush();
+            self.track_waiting();
         }
     }
 
@@ -764,7 +779,7 @@ impl VisualSlam {
 
     /// The run's trajectory, losses and counters.
     pub fn finish(mut self) -> SlamOutput {
-        self.flush();
+        self.track_waiting();
         let pairs = self
             .slots
             .iter()
