@@ -44,7 +44,7 @@ const MAX_THREADS: i64 = 1024;
         vinebench sweep merge runs/sweeps/a runs/sweeps/b       shards' rows → statistics, plots\n  \
         vinebench validate my-scenario.toml                    check a file without running it\n  \
         vinebench defaults > my-scenario.toml                  every key with its default\n  \
-        vinebench score --ref runs/x/ground_truth.tum runs/x/estimate_eif.tum --align\n  \
+        vinebench score ape tum runs/x/ground_truth.tum runs/x/estimate_eif.tum -a   (= evo_ape)\n  \
         vinebench replay runs/x/recording.mcap                 estimators on a recording\n  \
         vinebench vocabulary scenarios/vocabularies/training.toml --out my.vbvoc\n  \
         vinebench bench                                        speed figures for docs/PERFORMANCE.md"
@@ -154,11 +154,21 @@ enum Command {
         #[arg(long, requires = "out")]
         replace: bool,
     },
-    /// Score a TUM trajectory against a reference, like evo_ape / evo_rpe.
-    #[command(after_help = "Example:\n  \
-        vinebench score --ref ground_truth.tum estimate_eif.tum --align\n\
-        equals: evo_ape tum ground_truth.tum estimate_eif.tum --t_max_diff 0.01 -a")]
-    Score(ScoreArgs),
+    /// Score trajectories against a reference as evo_ape / evo_rpe do, with their options
+    /// and numbers (TUM, KITTI, EuRoC).
+    #[command(after_help = "Examples (each equals the evo command after it):\n  \
+        vinebench score ape tum ground_truth.tum estimate_eif.tum -a\n      \
+        evo_ape tum ground_truth.tum estimate_eif.tum -a\n  \
+        vinebench score ape kitti KITTI_00_gt.txt KITTI_00_ORB.txt -a -r angle_deg\n      \
+        evo_ape kitti KITTI_00_gt.txt KITTI_00_ORB.txt -a -r angle_deg\n  \
+        vinebench score ape euroc V102_groundtruth.csv V102.txt -as --save_results r.json\n      \
+        evo_ape euroc V102_groundtruth.csv V102.txt -as --save_results r.zip\n  \
+        vinebench score rpe tum gt.tum est.tum -d 10 -u m --all_pairs\n      \
+        evo_rpe tum gt.tum est.tum -d 10 -u m --all_pairs\n  \
+        vinebench score ape tum gt.tum eif.tum gnss.tum slam.tum -a   # one table of all three\n\n\
+        The older form `vinebench score --ref REF EST [--align]` prints APE and RPE (translation) \
+        as JSON.")]
+    Score(ScoreCommand),
     /// Train the visual SLAM's bag-of-words vocabulary on the keyframes of a simulated
     /// scenario.
     #[command(after_help = "Examples:\n  \
@@ -299,12 +309,46 @@ enum SweepAction {
 }
 
 #[derive(Args)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+struct ScoreCommand {
+    #[command(subcommand)]
+    metric: Option<EvoMetric>,
+    #[command(flatten)]
+    legacy: ScoreArgs,
+}
+
+#[derive(Subcommand)]
+enum EvoMetric {
+    /// Absolute pose error of each estimate, as evo_ape (same options, same numbers).
+    #[command(after_help = "Examples:\n  \
+        vinebench score ape tum gt.tum est.tum -as --n_to_align 10\n  \
+        vinebench score ape kitti KITTI_00_gt.txt KITTI_00_ORB.txt -r full --align_origin\n\n\
+        Association (stamps within --t_max_diff, the shorter trajectory driving), alignment and \
+        the pose relations are evo 1.38.1's; repeated or unsorted stamps are accepted as evo \
+        accepts them, and a note on stderr says how many poses association left out.")]
+    Ape(scoring::evo::cli::EvoArgs),
+    /// Relative pose error of each estimate, as evo_rpe (same options, same numbers).
+    #[command(after_help = "Examples:\n  \
+        vinebench score rpe tum gt.tum est.tum                    # delta 1 frame\n  \
+        vinebench score rpe kitti gt.txt est.txt -d 100 -u m --all_pairs\n  \
+        vinebench score rpe tum gt.tum est.tum -d 5 -u d -r angle_deg")]
+    Rpe {
+        #[command(flatten)]
+        args: scoring::evo::cli::EvoArgs,
+        #[command(flatten)]
+        rpe: scoring::evo::cli::RpeArgs,
+    },
+}
+
+/// The older `vinebench score --ref REF EST`: APE and RPE (translation) as JSON.
+#[derive(Args)]
 struct ScoreArgs {
     /// Reference (ground-truth) TUM file.
-    #[arg(long = "ref", value_name = "TUM")]
-    reference: PathBuf,
+    #[arg(long = "ref", value_name = "TUM", required = true)]
+    reference: Option<PathBuf>,
     /// Estimated TUM file.
-    estimate: PathBuf,
+    #[arg(required = true)]
+    estimate: Option<PathBuf>,
     /// Maximum stamp difference for association, s (evo's --t_max_diff; finite, >= 0).
     #[arg(long, default_value_t = 0.01, value_parser = non_negative_seconds)]
     t_max_diff: f64,
@@ -421,7 +465,13 @@ fn dispatch(cmd: Command) -> Result<u8> {
             out!("{}", vinebench_msgs::defaults::DEFAULTS_TOML);
             Ok(EXIT_PASS)
         }
-        Command::Score(a) => score(&a),
+        Command::Score(c) => match &c.metric {
+            Some(EvoMetric::Ape(a)) => scoring::evo::cli::run(a, None).map(|()| EXIT_PASS),
+            Some(EvoMetric::Rpe { args, rpe }) => {
+                scoring::evo::cli::run(args, Some(rpe)).map(|()| EXIT_PASS)
+            }
+            None => score(&c.legacy),
+        },
         Command::Replay {
             recording,
             config,
@@ -1063,8 +1113,11 @@ fn positive_metres(s: &str) -> Result<f64, String> {
 }
 
 fn score(a: &ScoreArgs) -> Result<u8> {
-    let reference = scoring::tum::read_tum(&a.reference)?;
-    let estimate = scoring::tum::read_tum(&a.estimate)?;
+    let (Some(reference_path), Some(estimate_path)) = (&a.reference, &a.estimate) else {
+        bail!("give --ref REF and an estimate (or use `vinebench score ape|rpe`)");
+    };
+    let reference = scoring::tum::read_tum(reference_path)?;
+    let estimate = scoring::tum::read_tum(estimate_path)?;
     let max_diff = Nanos::from_secs_f64(a.t_max_diff);
     let pairs = if a.pairs_from_reference {
         PairsFrom::Reference
@@ -1074,8 +1127,8 @@ fn score(a: &ScoreArgs) -> Result<u8> {
     let ape = scoring::metrics::ape(&reference, &estimate, max_diff, a.align)?;
     let rpe = scoring::metrics::rpe(&reference, &estimate, max_diff, a.delta, a.align, pairs)?;
     let out = serde_json::json!({
-        "reference": a.reference.display().to_string(),
-        "estimate": a.estimate.display().to_string(),
+        "reference": reference_path.display().to_string(),
+        "estimate": estimate_path.display().to_string(),
         "t_max_diff_s": a.t_max_diff,
         "aligned": a.align,
         "matched_poses": ape.matched,

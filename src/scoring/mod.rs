@@ -14,6 +14,7 @@
 //! `scripts/evo_crosscheck.py` prints evo's numbers for two TUM files, to compare.
 
 pub mod align;
+pub mod evo;
 pub mod expect;
 pub mod loops;
 pub mod map;
