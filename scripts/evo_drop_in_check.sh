@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # `vinebench score ape|rpe` against evo_ape / evo_rpe 1.38.1 on the trajectories of evo's
-# own test data (TUM RGB-D, KITTI, EuRoC; shipped in evo's source distribution on PyPI):
-# every option of issue #31, every statistic equal to evo's to 1e-6 relative, and the
-# error arrays element by element.
+# own test data (TUM RGB-D, KITTI, EuRoC, a ROS 1 bag, a ROS 2 MCAP; shipped in evo's source
+# distribution on PyPI): every option of issue #31, every statistic equal to evo's to 1e-6
+# relative, and the error arrays element by element.
 #
 #   bash scripts/evo_drop_in_check.sh           # uses/creates target/evo-venv, downloads the data
 #   bash scripts/evo_drop_in_check.sh --table   # also prints the comparison table (Markdown)
@@ -76,6 +76,15 @@ rpe|tum|fr2_desk_groundtruth.txt|fr2_desk_ORB.txt|-d 5 -u d --all_pairs -t 0.001
 rpe|tum|fr2_desk_groundtruth.txt|fr2_desk_ORB.txt|-d 5 -u f -r point_distance
 rpe|euroc|V102_groundtruth.csv|V102.txt|-d 1 -u m
 rpe|euroc|V102_groundtruth.csv|V102.txt|-d 0.1 -u r --all_pairs -as -r angle_deg
+ape|bag|ROS_example.bag|groundtruth S-PTAM|
+ape|bag|ROS_example.bag|groundtruth S-PTAM|-a
+ape|bag|ROS_example.bag|groundtruth ORB-SLAM|-as -r angle_deg
+rpe|bag|ROS_example.bag|groundtruth S-PTAM|
+rpe|bag|ROS_example.bag|groundtruth ORB-SLAM|-d 1 -u m -a
+ape|bag2|nav2_turtlebot.mcap|/amcl_pose /odom|-a
+ape|bag2|nav2_turtlebot.mcap|/amcl_pose /odom|-r angle_deg --t_max_diff 0.05
+rpe|bag2|nav2_turtlebot.mcap|/amcl_pose /odom|-r angle_deg
+rpe|mcap|nav2_turtlebot.mcap|/odom /amcl_pose|-d 0.5 -u m -a
 LIST
 )
 
@@ -88,15 +97,34 @@ while IFS='|' read -r metric format ref est opts; do
     dir="$WORK/cases/$i"
     mkdir -p "$dir"
     printf '%s\n' "$metric $format $ref $est $opts" > "$dir/case.txt"
+    # Files are in the data folder; a recording's topics are names.
+    case "$format" in
+        bag|bag2|mcap) read -r -a inputs <<< "$est" ;;
+        *) inputs=("$DATA/$est") ;;
+    esac
     # shellcheck disable=SC2086 # options are words
-    "$VENV/bin/evo_$metric" "$format" "$DATA/$ref" "$DATA/$est" $opts \
+    "$VENV/bin/evo_$metric" "$format" "$DATA/$ref" "${inputs[@]}" $opts \
         --save_results "$dir/evo.zip" --no_warnings > "$dir/evo.log" 2>&1 \
         || { echo "evo failed on case $i ($metric $format $est $opts):"; cat "$dir/evo.log"; exit 1; }
     # shellcheck disable=SC2086
-    ./target/release/vinebench score "$metric" "$format" "$DATA/$ref" "$DATA/$est" $opts \
+    ./target/release/vinebench score "$metric" "$format" "$DATA/$ref" "${inputs[@]}" $opts \
         --save_results "$dir/ours.json" > "$dir/ours.log" 2> "$dir/ours.err" \
         || { echo "vinebench failed on case $i:"; cat "$dir/ours.err"; exit 1; }
 done <<< "$CASES"
+
+# tf lookups (evo needs ROS's tf2_py for them, so no evo numbers here): the robot's
+# odom -> base_footprint transform, looked up through /tf, must equal its /odom topic
+# exactly wherever the 0.1 s lookup grid meets an odometry stamp.
+./target/release/vinebench score ape bag2 "$DATA/nav2_turtlebot.mcap" /odom /tf:odom.base_footprint \
+    -r full --t_max_diff 0 --save_results "$WORK/tf.json" > /dev/null 2>&1
+"$VENV/bin/python" - "$WORK/tf.json" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[1]))
+n, worst = len(r["np_arrays"]["error_array"]), r["stats"]["max"]
+print(f"tf lookup /tf:odom.base_footprint vs /odom at {n} common stamps: largest full-transformation error {worst:.1e}")
+if n < 100 or worst > 1e-12:
+    sys.exit(1)
+PY
 
 "$VENV/bin/python" - "$WORK/cases" "$TOL" "$TABLE" <<'PY'
 import json, sys, zipfile, io, os

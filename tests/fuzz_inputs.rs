@@ -1,6 +1,7 @@
 //! Fuzz targets for the bench's text and data inputs: scenario files (parsed, then
 //! validated as `vinebench validate` does), sweep files, TUM trajectories, PLY clouds and
-//! meshes, OBJ meshes and bag-of-words vocabularies.
+//! meshes, OBJ meshes, bag-of-words vocabularies, and what `vinebench score ape|rpe`
+//! reads (TUM, KITTI and EuRoC files through the whole evo pipeline, ROS 1 bags).
 //!
 //! Seeds are the real files (the shipped scenarios, sweeps and vocabulary, the mapper's
 //! exports, runs' TUM files) plus `tests/fuzz/corpus/<target>/` (every reproducer found).
@@ -281,6 +282,61 @@ proptest! {
     }
 
     #[test]
+    fn evo_score_mutants(muts in mutations(4), kind in 0..3usize, rel in 0..6usize, opts in 0..8usize) {
+        use vinebench::scoring::evo::{self, Options, PoseRelation, RpeOptions, pairs::DeltaUnit, read};
+        let seeds = evo_seeds();
+        let (format, seed) = &seeds[kind];
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("ref"), dir.path().join("est"));
+        std::fs::write(&a, seed).unwrap();
+        std::fs::write(&b, mutate(seed, &muts)).unwrap();
+        no_panic(&format!("{format} with {muts:?}, relation {rel}, options {opts}"), || {
+            let (Ok(r), Ok(e)) = (read::read(&a, *format, None), read::read(&b, *format, None)) else {
+                return;
+            };
+            let relation = [
+                PoseRelation::TransPart,
+                PoseRelation::AngleDeg,
+                PoseRelation::RotPart,
+                PoseRelation::Full,
+                PoseRelation::PointDistance,
+                PoseRelation::AngleRad,
+            ][rel];
+            let o = Options {
+                t_max_diff: 0.01,
+                t_offset: 0.0,
+                align: opts & 1 == 1,
+                correct_scale: opts & 2 == 2,
+                n_to_align: (opts & 4 == 4).then_some(3),
+                align_origin: false,
+                relation,
+            };
+            let _ = evo::ape(&r, &e, &o);
+            for unit in [DeltaUnit::Frames, DeltaUnit::Meters, DeltaUnit::Degrees] {
+                let ro = RpeOptions {
+                    delta: Some(1.0),
+                    delta_unit: unit,
+                    delta_tol: 0.5,
+                    all_pairs: opts & 1 == 0,
+                    pairs_from_reference: false,
+                };
+                let _ = evo::rpe(&r, &e, &o, &ro);
+            }
+        });
+    }
+
+    #[test]
+    fn ros1_bag_mutants(muts in mutations(4), bz2 in any::<bool>(), tf in any::<bool>()) {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("fuzz.bag");
+        std::fs::write(&p, mutate(&bag1_seed(if bz2 { "bz2" } else { "none" }), &muts)).unwrap();
+        no_panic(&format!("bz2 {bz2}, tf {tf}, {muts:?}"), || {
+            let topic = if tf { "/tf:map.base" } else { "/pose" };
+            let _ = vinebench::scoring::evo::bag::read_topic(&p, topic);
+        });
+    }
+
+    #[test]
     fn mesh_mutants(muts in mutations(3), kind in 0..3usize) {
         let dir = tempfile::tempdir().unwrap();
         let seeds = mesh_seeds();
@@ -299,6 +355,134 @@ proptest! {
 }
 
 /// A small real cloud and mesh, written by the mapper's own exporters.
+/// Seeds of `vinebench score`'s text formats: a short curvy trajectory as TUM, KITTI (7
+/// digits, as KITTI's files) and EuRoC.
+fn evo_seeds() -> Vec<(vinebench::scoring::evo::Format, Vec<u8>)> {
+    use vinebench::scoring::evo::Format;
+    let (mut tum, mut kitti, mut euroc) = (String::new(), String::new(), String::new());
+    for i in 0..30 {
+        let (t, yaw) = (1.6e9 + i as f64 * 0.1, i as f64 * 0.1);
+        let (x, y) = (i as f64 * 0.3, (i as f64 * 0.2).sin());
+        let (s, c) = ((yaw / 2.0).sin(), (yaw / 2.0).cos());
+        tum.push_str(&format!("{t:.6} {x} {y} 0.1 0 0 {s} {c}\n"));
+        kitti.push_str(&format!(
+            "{:.7e} {:.7e} 0 {x:.7e} {:.7e} {:.7e} 0 {y:.7e} 0 0 1 0\n",
+            yaw.cos(),
+            -yaw.sin(),
+            yaw.sin(),
+            yaw.cos()
+        ));
+        euroc.push_str(&format!("{},{x},{y},0.1,{c},0,0,{s}\n", (t * 1e9) as i64));
+    }
+    vec![
+        (Format::Tum, tum.into_bytes()),
+        (Format::Kitti, kitti.into_bytes()),
+        (Format::Euroc, euroc.into_bytes()),
+    ]
+}
+
+/// A ROS 1 bag of `geometry_msgs/PoseStamped` on `/pose` and a `tf2_msgs/TFMessage` on
+/// `/tf`, in one chunk compressed with `compression` (`none` or `bz2`).
+fn bag1_seed(compression: &str) -> Vec<u8> {
+    use std::io::Read;
+    fn field(k: &str, v: &[u8]) -> Vec<u8> {
+        let mut f = k.as_bytes().to_vec();
+        f.push(b'=');
+        f.extend_from_slice(v);
+        let mut out = (f.len() as u32).to_le_bytes().to_vec();
+        out.extend(f);
+        out
+    }
+    fn record(header: &[Vec<u8>], data: &[u8]) -> Vec<u8> {
+        let h: Vec<u8> = header.concat();
+        let mut out = (h.len() as u32).to_le_bytes().to_vec();
+        out.extend(h);
+        out.extend((data.len() as u32).to_le_bytes());
+        out.extend_from_slice(data);
+        out
+    }
+    fn string(s: &str) -> Vec<u8> {
+        let mut v = (s.len() as u32).to_le_bytes().to_vec();
+        v.extend_from_slice(s.as_bytes());
+        v
+    }
+    fn header(sec: u32, frame: &str) -> Vec<u8> {
+        [
+            0u32.to_le_bytes().to_vec(),
+            sec.to_le_bytes().to_vec(),
+            5u32.to_le_bytes().to_vec(),
+            string(frame),
+        ]
+        .concat()
+    }
+    let pose = |x: f64| -> Vec<u8> {
+        [x, 0.5, 0.0, 0.0, 0.0, 0.0, 1.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect()
+    };
+    let conn = |id: u32, topic: &str, ty: &str| {
+        record(
+            &[
+                field("op", &[7]),
+                field("conn", &id.to_le_bytes()),
+                field("topic", topic.as_bytes()),
+            ],
+            &[
+                field("topic", topic.as_bytes()),
+                field("type", ty.as_bytes()),
+            ]
+            .concat(),
+        )
+    };
+    let msg = |id: u32, sec: u32, data: Vec<u8>| {
+        let time = [sec.to_le_bytes(), 0u32.to_le_bytes()].concat();
+        record(
+            &[
+                field("op", &[2]),
+                field("conn", &id.to_le_bytes()),
+                field("time", &time),
+            ],
+            &data,
+        )
+    };
+    let mut inner = conn(0, "/pose", "geometry_msgs/PoseStamped");
+    inner.extend(conn(1, "/tf", "tf2_msgs/TFMessage"));
+    for k in 0..20u32 {
+        inner.extend(msg(
+            0,
+            100 + k,
+            [header(100 + k, "map"), pose(f64::from(k))].concat(),
+        ));
+        let tf = [
+            1u32.to_le_bytes().to_vec(),
+            header(100 + k, "map"),
+            string("base"),
+            pose(f64::from(k)),
+        ]
+        .concat();
+        inner.extend(msg(1, 100 + k, tf));
+    }
+    let data = if compression == "bz2" {
+        let mut out = Vec::new();
+        bzip2::read::BzEncoder::new(&inner[..], bzip2::Compression::fast())
+            .read_to_end(&mut out)
+            .unwrap();
+        out
+    } else {
+        inner.clone()
+    };
+    let chunk = record(
+        &[
+            field("op", &[5]),
+            field("compression", compression.as_bytes()),
+            field("size", &(inner.len() as u32).to_le_bytes()),
+        ],
+        &data,
+    );
+    [b"#ROSBAG V2.0\n".to_vec(), chunk].concat()
+}
+
 fn mesh_seeds() -> Vec<(String, Vec<u8>)> {
     use vinebench_onboard::mapper::{PointCloud, TriangleMesh, export, ply};
     let dir = tempfile::tempdir().unwrap();
@@ -331,4 +515,31 @@ fn mesh_seeds() -> Vec<(String, Vec<u8>)> {
         ("m.ply".into(), std::fs::read(m).unwrap()),
         ("m.obj".into(), std::fs::read(o).unwrap()),
     ]
+}
+
+#[test]
+fn the_bag_seeds_read_whole() {
+    // The fuzz seeds are valid bags: mutants start from files that read.
+    for c in ["none", "bz2"] {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("seed.bag");
+        std::fs::write(&p, bag1_seed(c)).unwrap();
+        let poses = vinebench::scoring::evo::bag::read_topic(&p, "/pose").unwrap();
+        assert_eq!(poses.poses.len(), 20);
+        let tf = vinebench::scoring::evo::bag::read_topic(&p, "/tf:map.base").unwrap();
+        // Every 0.1 s from 100.000000005 s to 119.000000005 s.
+        assert_eq!(tf.poses.len(), 191, "{c}");
+    }
+    for (format, seed) in evo_seeds() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("seed");
+        std::fs::write(&p, seed).unwrap();
+        assert_eq!(
+            vinebench::scoring::evo::read::read(&p, format, None)
+                .unwrap()
+                .poses
+                .len(),
+            30
+        );
+    }
 }

@@ -43,6 +43,7 @@
 //! assert_eq!(seen, [("/imu/data".to_string(), imu)]);
 //! ```
 
+pub mod bag1;
 pub mod cdr;
 pub mod reader;
 pub mod ros;

@@ -191,7 +191,7 @@ fn secs_since(t: Nanos, t0: Nanos) -> f64 {
 
 /// Pixel size of the plotting area the charts here get (margins, label areas and caption
 /// are fixed, so it does not depend on the data).
-fn plotting_area_px(caption: &str) -> Result<(u32, u32), PlotError> {
+pub(crate) fn plotting_area_px(caption: &str) -> Result<(u32, u32), PlotError> {
     let mut scratch = String::new();
     let root = SVGBackend::with_string(&mut scratch, SIZE_PX).into_drawing_area();
     let chart = chart_builder(&root, caption)
@@ -213,7 +213,7 @@ pub(crate) fn chart_builder<'a, 'b>(
 }
 
 /// Widens the smaller of two ranges so that one metre takes as many pixels on x as on y.
-fn equal_scale(
+pub(crate) fn equal_scale(
     (x0, x1): (f64, f64),
     (y0, y1): (f64, f64),
     (w_px, h_px): (u32, u32),

@@ -17,6 +17,8 @@ pub enum FormatArg {
     Kitti,
     /// The reference a EuRoC ground-truth CSV, the estimates TUM files (as evo_ape euroc).
     Euroc,
+    /// A ROS 1 bag, then the reference topic and the estimate topics (as evo_ape bag).
+    Bag,
     /// A ROS 2 recording (MCAP file or rosbag2 folder), then the reference topic and the
     /// estimate topics (as evo_ape bag2).
     #[value(alias = "mcap")]
@@ -26,14 +28,15 @@ pub enum FormatArg {
 /// What `ape` and `rpe` take (evo_ape's options of the same names; see `--help`).
 #[derive(clap::Args, Debug, Clone)]
 pub struct EvoArgs {
-    /// File format: tum, kitti, euroc (EuRoC CSV reference, TUM estimates) or bag2 (alias
-    /// mcap: a ROS 2 recording and topics).
+    /// File format: tum, kitti, euroc (EuRoC CSV reference, TUM estimates), bag (a ROS 1
+    /// bag and topics) or bag2 (alias mcap: a ROS 2 recording and topics).
     #[arg(value_enum)]
     pub format: FormatArg,
-    /// Reference trajectory (bag2: the recording).
+    /// Reference trajectory (bag, bag2: the recording).
     pub reference: PathBuf,
     /// Estimated trajectories (several: each against the reference, then a table of all,
-    /// as evo_res shows). bag2: the reference topic, then the estimate topics.
+    /// as evo_res shows). bag, bag2: the reference topic, then the estimate topics (a topic
+    /// or a transform `/tf:parent.child`).
     #[arg(required = true)]
     pub estimates: Vec<PathBuf>,
     /// Pose relation of the error.
@@ -79,6 +82,13 @@ pub struct EvoArgs {
     /// Save the statistics of every estimate as CSV (evo_res --save_table).
     #[arg(long = "save_table", value_name = "FILE")]
     pub save_table: Option<PathBuf>,
+    /// Save a plot (SVG): the error along the trajectory beside the trajectories, the
+    /// estimate coloured by its error.
+    #[arg(long = "save_plot", value_name = "FILE")]
+    pub save_plot: Option<PathBuf>,
+    /// The plane of the trajectory view (xyz: drawn as xy).
+    #[arg(long = "plot_mode", value_enum, default_value = "xy")]
+    pub plot_mode: super::plot::PlotMode,
     /// Accepted for evo compatibility (vinebench never prompts).
     #[arg(long = "no_warnings")]
     pub no_warnings: bool,
@@ -187,12 +197,12 @@ impl EvoArgs {
             FormatArg::Tum => (Format::Tum, Format::Tum),
             FormatArg::Kitti => (Format::Kitti, Format::Kitti),
             FormatArg::Euroc => (Format::Euroc, Format::Tum),
-            FormatArg::Bag2 => {
+            FormatArg::Bag | FormatArg::Bag2 => {
                 let [ref_topic, est_topics @ ..] = self.estimates.as_slice() else {
-                    bail!("bag2: give the recording, the reference topic and estimate topics");
+                    bail!("bag/bag2: give the recording, the reference topic and estimate topics");
                 };
                 if est_topics.is_empty() {
-                    bail!("bag2: give the recording, the reference topic and estimate topics");
+                    bail!("bag/bag2: give the recording, the reference topic and estimate topics");
                 }
                 let topic = |p: &PathBuf| p.to_string_lossy().into_owned();
                 let reference = super::bag::read_topic(&self.reference, &topic(ref_topic))?;
@@ -255,6 +265,10 @@ pub fn run(args: &EvoArgs, rpe: Option<&RpeArgs>) -> Result<()> {
         }
         .context("encoding the results")?;
         write(path, (json + "\n").as_bytes())?;
+    }
+    if let Some(path) = &args.save_plot {
+        let svg = super::plot::svg(&results, args.plot_mode).context("drawing the plot")?;
+        write(path, svg.as_bytes())?;
     }
     if let Some(path) = &args.save_table {
         write(path, csv_table(&results).as_bytes())?;

@@ -14,8 +14,10 @@ pub mod bag;
 pub mod cli;
 pub mod lie;
 pub mod pairs;
+pub mod plot;
 pub mod read;
 pub mod sync;
+pub mod tf;
 
 use lie::Pose;
 use pairs::DeltaUnit;
@@ -309,6 +311,18 @@ pub struct EvoResult {
     pub np_arrays: Arrays,
     /// What association left out, and other notes (not in evo's results).
     pub notes: Vec<String>,
+    /// Positions for the plot (not saved).
+    #[serde(skip)]
+    pub plot: PlotData,
+}
+
+/// What the plot draws of a result.
+#[derive(Clone, Debug, Default)]
+pub struct PlotData {
+    /// The associated reference positions.
+    pub reference: Vec<nalgebra::Vector3<f64>>,
+    /// The (aligned) estimate position of each error (RPE: the pair's second pose).
+    pub estimate: Vec<nalgebra::Vector3<f64>>,
 }
 
 /// evo's `info.json`.
@@ -567,6 +581,10 @@ pub fn ape(reference: &Traj, estimate: &Traj, o: &Options) -> Result<EvoResult, 
     arrays.alignment_transformation_sim3 = p.alignment.as_ref().map(matrix_rows);
     let stats = Stats::of(&error).expect("association gave at least one pair");
     arrays.error_array = error;
+    let plot = PlotData {
+        reference: p.reference.iter().map(lie::translation).collect(),
+        estimate: p.estimate.iter().map(lie::translation).collect(),
+    };
     let title = format!(
         "APE w.r.t. {} ({}){}",
         o.relation.evo_value(),
@@ -583,6 +601,7 @@ pub fn ape(reference: &Traj, estimate: &Traj, o: &Options) -> Result<EvoResult, 
         stats,
         np_arrays: arrays,
         notes: p.notes,
+        plot,
     })
 }
 
@@ -670,6 +689,13 @@ pub fn rpe(
     arrays.alignment_transformation_sim3 = p.alignment.as_ref().map(matrix_rows);
     let stats = Stats::of(&error).expect("at least one pair");
     arrays.error_array = error;
+    let plot = PlotData {
+        reference: p.reference.iter().map(lie::translation).collect(),
+        estimate: ids
+            .iter()
+            .map(|&(_, j)| lie::translation(&p.estimate[j]))
+            .collect(),
+    };
     let mut title = format!(
         "RPE w.r.t. {} ({})\nfor delta = {} ({})",
         o.relation.evo_value(),
@@ -693,6 +719,7 @@ pub fn rpe(
         stats,
         np_arrays: arrays,
         notes,
+        plot,
     })
 }
 

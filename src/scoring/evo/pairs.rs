@@ -48,6 +48,15 @@ pub enum PairsError {
         /// The unit.
         unit: &'static str,
     },
+    /// All pairs within the angle tolerance would be too many.
+    #[error(
+        "more than {max} pose pairs within the angle tolerance: narrow -t/--delta_tol or use \
+         consecutive pairs"
+    )]
+    TooManyPairs {
+        /// The limit.
+        max: usize,
+    },
     /// A frame delta that is not a positive integer.
     #[error("delta must be a positive integer for delta unit frames, found {0}")]
     Frames(f64),
@@ -145,6 +154,10 @@ pub fn by_path(poses: &[Pose], delta: f64, tol: f64, all_pairs: bool) -> Vec<(us
     }
 }
 
+/// Most pairs of the all-pairs angle mode (the only one that can grow with the square of
+/// the poses): 50 million, 800 MB.
+pub const MAX_ANGLE_PAIRS: usize = 50_000_000;
+
 /// Every `delta` radians of rotation.
 pub fn by_angle(
     poses: &[Pose],
@@ -170,6 +183,11 @@ pub fn by_angle(
             for (j, qj) in quats.iter().enumerate().skip(i + 1) {
                 let a = lie::quaternion_delta_angle(quats[i], *qj);
                 if lo <= a && a <= hi {
+                    if pairs.len() == MAX_ANGLE_PAIRS {
+                        return Err(PairsError::TooManyPairs {
+                            max: MAX_ANGLE_PAIRS,
+                        });
+                    }
                     pairs.push((i, j));
                 }
             }
