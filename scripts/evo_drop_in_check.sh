@@ -2,7 +2,8 @@
 # `vinebench score ape|rpe` against evo_ape / evo_rpe 1.38.1 on the trajectories of evo's
 # own test data (TUM RGB-D, KITTI, EuRoC, a ROS 1 bag, a ROS 2 MCAP; shipped in evo's source
 # distribution on PyPI): every option of issue #31, every statistic equal to evo's to 1e-6
-# relative, and the error arrays element by element.
+# relative, every array element by element, the titles and names; both results are read
+# by evo's own load_res_file (vinebench writes evo's zip format).
 #
 #   bash scripts/evo_drop_in_check.sh           # uses/creates target/evo-venv, downloads the data
 #   bash scripts/evo_drop_in_check.sh --table   # also prints the comparison table (Markdown)
@@ -108,7 +109,7 @@ while IFS='|' read -r metric format ref est opts; do
         || { echo "evo failed on case $i ($metric $format $est $opts):"; cat "$dir/evo.log"; exit 1; }
     # shellcheck disable=SC2086
     ./target/release/vinebench score "$metric" "$format" "$DATA/$ref" "${inputs[@]}" $opts \
-        --save_results "$dir/ours.json" > "$dir/ours.log" 2> "$dir/ours.err" \
+        --save_results "$dir/ours.zip" > "$dir/ours.log" 2> "$dir/ours.err" \
         || { echo "vinebench failed on case $i:"; cat "$dir/ours.err"; exit 1; }
 done <<< "$CASES"
 
@@ -127,20 +128,29 @@ if n < 100 or worst > 1e-12:
 PY
 
 "$VENV/bin/python" - "$WORK/cases" "$TOL" "$TABLE" <<'PY'
-import json, sys, zipfile, io, os
+import json, sys, os
 import numpy as np
+from evo.tools import file_interface
 root, tol, table = sys.argv[1], float(sys.argv[2]), sys.argv[3] == "--table"
 names = ["rmse", "mean", "median", "std", "min", "max", "sse"]
 bad, rows, worst_all = [], [], 0.0
 for case in sorted(os.listdir(root), key=int):
     d = os.path.join(root, case)
     what = open(os.path.join(d, "case.txt")).read().strip()
-    with zipfile.ZipFile(os.path.join(d, "evo.zip")) as z:
-        evo_stats = json.loads(z.read("stats.json"))
-        evo_info = json.loads(z.read("info.json"))
-        evo_err = np.load(io.BytesIO(z.read("error_array.npy")))
-    ours = json.load(open(os.path.join(d, "ours.json")))
-    err = np.array(ours["np_arrays"]["error_array"])
+    # Both result files read by evo itself (ours is written in evo's zip format).
+    theirs = file_interface.load_res_file(os.path.join(d, "evo.zip"))
+    mine = file_interface.load_res_file(os.path.join(d, "ours.zip"))
+    evo_stats, evo_info, evo_err = theirs.stats, theirs.info, theirs.np_arrays["error_array"]
+    ours = {"stats": mine.stats, "info": mine.info}
+    err = mine.np_arrays["error_array"]
+    if sorted(mine.np_arrays) != sorted(theirs.np_arrays):
+        bad.append(f"{what}: arrays {sorted(mine.np_arrays)} vs evo {sorted(theirs.np_arrays)}")
+    for k, v in theirs.np_arrays.items():
+        if k != "error_array" and k in mine.np_arrays:
+            m = mine.np_arrays[k]
+            sc = max(float(np.max(np.abs(v))) if v.size else 0.0, 1e-300)
+            if m.shape != v.shape or float(np.max(np.abs(m - v), initial=0.0)) / sc > tol:
+                bad.append(f"{what}: array {k} differs")
     worst = 0.0
     if len(err) != len(evo_err):
         bad.append(f"{what}: {len(err)} errors, evo {len(evo_err)}")
@@ -157,8 +167,9 @@ for case in sorted(os.listdir(root), key=int):
         worst = max(worst, rel)
         if rel > tol:
             bad.append(f"{what}: {k} vinebench {a!r} evo {b!r} (rel {rel:.1e})")
-    if ours["info"]["title"] != evo_info["title"]:
-        bad.append(f"{what}: title {ours['info']['title']!r} vs evo {evo_info['title']!r}")
+    for k in ("title", "label", "ref_name", "est_name"):
+        if ours["info"][k] != evo_info[k]:
+            bad.append(f"{what}: {k} {ours['info'][k]!r} vs evo {evo_info[k]!r}")
     if elem > tol:
         bad.append(f"{what}: error arrays differ by {elem:.1e} of the largest error")
     worst = max(worst, elem)

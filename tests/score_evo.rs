@@ -136,6 +136,26 @@ fn closed_forms_alignment_tables_and_saved_results() {
     assert!(first["stats"]["max"].as_f64().unwrap() < 1e-9);
     let svg = std::fs::read_to_string(dir.path().join("p.svg")).unwrap();
     assert!(svg.starts_with("<svg") && svg.contains("est2.tum"));
+    // evo's zip format holds one result (scripts/evo_drop_in_check.sh reads ours with evo).
+    let zip = dir.path().join("r.zip");
+    let one = vinebench()
+        .args(["score", "ape", "tum"])
+        .args([&gt, &est])
+        .arg("--save_results")
+        .arg(&zip)
+        .output()
+        .unwrap();
+    assert!(one.status.success());
+    let bytes = std::fs::read(&zip).unwrap();
+    assert!(bytes.starts_with(b"PK\x03\x04") && bytes.windows(9).any(|w| w == b"info.json"));
+    let two = vinebench()
+        .args(["score", "ape", "tum"])
+        .args([&gt, &est, &est2])
+        .arg("--save_results")
+        .arg(&zip)
+        .output()
+        .unwrap();
+    assert_eq!(two.status.code(), Some(2));
 }
 
 #[test]

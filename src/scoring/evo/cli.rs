@@ -74,9 +74,10 @@ pub struct EvoArgs {
     /// KITTI: the estimate's times file.
     #[arg(long = "est_times", value_name = "FILE")]
     pub est_times: Option<PathBuf>,
-    /// Save the result as JSON: evo's info, stats and arrays (error_array, timestamps,
-    /// seconds_from_start, distances, alignment_transformation_sim3); with several
-    /// estimates a list of them.
+    /// Save the result: FILE.zip in evo's format (evo_res reads it; one estimate), any
+    /// other name as JSON with the same info, stats and arrays (error_array, timestamps,
+    /// seconds_from_start, distances, alignment_transformation_sim3; a list of them with
+    /// several estimates).
     #[arg(long = "save_results", value_name = "FILE")]
     pub save_results: Option<PathBuf>,
     /// Save the statistics of every estimate as CSV (evo_res --save_table).
@@ -257,7 +258,21 @@ pub fn run(args: &EvoArgs, rpe: Option<&RpeArgs>) -> Result<()> {
     if results.len() > 1 {
         outln!("{}", table(&results));
     }
-    if let Some(path) = &args.save_results {
+    if let Some(path) = args
+        .save_results
+        .as_ref()
+        .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("zip")))
+    {
+        // evo's own format (evo_res reads it): one result per zip.
+        let [r] = results.as_slice() else {
+            bail!(
+                "--save_results {}: a .zip holds one result, as evo's; give one estimate or a \
+                 .json file",
+                path.display()
+            );
+        };
+        write(path, &super::zip::zip(r).context("encoding the results")?)?;
+    } else if let Some(path) = &args.save_results {
         let json = if results.len() == 1 {
             serde_json::to_string_pretty(&results[0])
         } else {

@@ -18,6 +18,7 @@ pub mod plot;
 pub mod read;
 pub mod sync;
 pub mod tf;
+pub mod zip;
 
 use lie::Pose;
 use pairs::DeltaUnit;
