@@ -121,45 +121,28 @@ pub struct RpeArgs {
     pub pairs_from_reference: bool,
 }
 
-fn parse_f64(s: &str, what: &str) -> Result<f64, String> {
+/// A finite number that `ok` accepts, or an error saying `what` was expected.
+fn number(s: &str, what: &str, ok: fn(f64) -> bool) -> Result<f64, String> {
     s.parse::<f64>()
         .ok()
-        .filter(|v| v.is_finite())
+        .filter(|v| v.is_finite() && ok(*v))
         .ok_or_else(|| format!("expected {what}, found `{s}`"))
 }
 
 fn seconds_non_negative(s: &str) -> Result<f64, String> {
-    parse_f64(s, "seconds >= 0 such as 0.01").and_then(|v| {
-        if v >= 0.0 {
-            Ok(v)
-        } else {
-            Err(format!("expected seconds >= 0, found `{s}`"))
-        }
-    })
+    number(s, "seconds >= 0 such as 0.01", |v| v >= 0.0)
 }
 
 fn seconds_finite(s: &str) -> Result<f64, String> {
-    parse_f64(s, "seconds such as -1.2")
+    number(s, "seconds such as -1.2", |_| true)
 }
 
 fn positive_finite(s: &str) -> Result<f64, String> {
-    parse_f64(s, "a number > 0").and_then(|v| {
-        if v > 0.0 {
-            Ok(v)
-        } else {
-            Err(format!("expected a number > 0, found `{s}`"))
-        }
-    })
+    number(s, "a number > 0", |v| v > 0.0)
 }
 
 fn non_negative_finite(s: &str) -> Result<f64, String> {
-    parse_f64(s, "a number >= 0").and_then(|v| {
-        if v >= 0.0 {
-            Ok(v)
-        } else {
-            Err(format!("expected a number >= 0, found `{s}`"))
-        }
-    })
+    number(s, "a number >= 0", |v| v >= 0.0)
 }
 
 fn n_to_align(s: &str) -> Result<i64, String> {

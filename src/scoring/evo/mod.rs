@@ -249,31 +249,18 @@ pub struct Stats {
 }
 
 impl Stats {
-    /// The statistics of a non-empty error array.
+    /// The statistics of a non-empty error array (those of the run's scoring,
+    /// [`crate::scoring::metrics::Stats`], in evo's keys).
     pub fn of(e: &[f64]) -> Option<Stats> {
-        if e.is_empty() {
-            return None;
-        }
-        let n = e.len() as f64;
-        let sse: f64 = e.iter().map(|x| x * x).sum();
-        let mean = e.iter().sum::<f64>() / n;
-        let var = e.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
-        let mut sorted = e.to_vec();
-        sorted.sort_by(f64::total_cmp);
-        let m = sorted.len() / 2;
-        let median = if sorted.len() % 2 == 1 {
-            sorted[m]
-        } else {
-            0.5 * (sorted[m - 1] + sorted[m])
-        };
+        let s = crate::scoring::metrics::Stats::from_errors(e)?;
         Some(Stats {
-            rmse: (sse / n).sqrt(),
-            mean,
-            median,
-            std: var.sqrt(),
-            min: sorted[0],
-            max: sorted[sorted.len() - 1],
-            sse,
+            rmse: s.rmse,
+            mean: s.mean,
+            median: s.median,
+            std: s.std,
+            min: s.min,
+            max: s.max,
+            sse: s.sse,
         })
     }
 

@@ -36,34 +36,9 @@ pub fn matching_time_indices(
         }
         return (m1, m2, false);
     }
-    let (Some(&first), Some(&last)) = (s2.first(), s2.last()) else {
-        return (m1, m2, true);
-    };
-    for (i1, &t1) in stamps_1.iter().enumerate() {
-        if t1 < first - max_diff || t1 > last + max_diff {
-            continue;
-        }
-        // searchsorted(side="right"): the first index with s2 > t1.
-        let mut i2 = s2.partition_point(|&s| s <= t1);
-        if i2 >= s2.len() {
-            i2 = s2.len() - 1;
-        }
-        let diff_ub = s2[i2] - t1;
-        let diff_lb = if i2 > 0 {
-            t1 - s2[i2 - 1]
-        } else {
-            f64::INFINITY
-        };
-        let best = if diff_ub <= max_diff && diff_ub < diff_lb {
-            i2
-        } else if diff_lb <= max_diff && diff_lb <= diff_ub {
-            i2 - 1
-        } else {
-            continue;
-        };
-        m1.push(i1);
-        m2.push(best);
-    }
+    let (m1, m2) = crate::scoring::align::matching_time_indices(stamps_1, &s2, max_diff)
+        .into_iter()
+        .unzip();
     (m1, m2, true)
 }
 
