@@ -826,7 +826,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
 
     let mut got = Collected::default();
     let mut camera_topics = HashMap::new();
-    let summary = reader::scan_file(file, |ch, m| {
+    let summary = crate::recording::scan_any(file, |ch, m| {
         // A vinebench recording passes every camera on.
         if all_cameras
             && !roles.contains_key(&ch.topic)
@@ -1144,7 +1144,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             map_error = Some(e);
         }
     };
-    reader::scan_file(file, |ch, m| {
+    crate::recording::scan_any(file, |ch, m| {
         if let Some(mut msg) = collect(Scan::Sensors, &roles, &mut camera_topics, &mut got, ch, m) {
             rename_message(&cfg.frames, &mut msg);
             order.push(m.publish_time, msg, &mut feed);

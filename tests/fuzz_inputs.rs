@@ -421,7 +421,7 @@ fn bag1_seed(compression: &str) -> Vec<u8> {
             .flat_map(|v| v.to_le_bytes())
             .collect()
     };
-    let conn = |id: u32, topic: &str, ty: &str| {
+    let conn = |id: u32, topic: &str, ty: &str, def: &str| {
         record(
             &[
                 field("op", &[7]),
@@ -431,10 +431,28 @@ fn bag1_seed(compression: &str) -> Vec<u8> {
             &[
                 field("topic", topic.as_bytes()),
                 field("type", ty.as_bytes()),
+                field("message_definition", def.as_bytes()),
             ]
             .concat(),
         )
     };
+    let sep = "=".repeat(80);
+    let common = format!(
+        "{sep}\nMSG: std_msgs/Header\nuint32 seq\ntime stamp\nstring frame_id\n\
+         {sep}\nMSG: geometry_msgs/Quaternion\nfloat64 x\nfloat64 y\nfloat64 z\nfloat64 w\n\
+         {sep}\nMSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n\
+         {sep}\nMSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
+    );
+    let pose_def = format!(
+        "Header header\nPose pose\n{sep}\nMSG: geometry_msgs/Pose\nPoint position\n\
+         Quaternion orientation\n{common}"
+    );
+    let tf_def = format!(
+        "geometry_msgs/TransformStamped[] transforms\n{sep}\n\
+         MSG: geometry_msgs/TransformStamped\nHeader header\nstring child_frame_id # the child\n\
+         Transform transform\n{sep}\nMSG: geometry_msgs/Transform\nVector3 translation\n\
+         Quaternion rotation\n{common}"
+    );
     let msg = |id: u32, sec: u32, data: Vec<u8>| {
         let time = [sec.to_le_bytes(), 0u32.to_le_bytes()].concat();
         record(
@@ -446,8 +464,8 @@ fn bag1_seed(compression: &str) -> Vec<u8> {
             &data,
         )
     };
-    let mut inner = conn(0, "/pose", "geometry_msgs/PoseStamped");
-    inner.extend(conn(1, "/tf", "tf2_msgs/TFMessage"));
+    let mut inner = conn(0, "/pose", "geometry_msgs/PoseStamped", &pose_def);
+    inner.extend(conn(1, "/tf", "tf2_msgs/TFMessage", &tf_def));
     for k in 0..20u32 {
         inner.extend(msg(
             0,

@@ -4,10 +4,10 @@
 //! read from the chunks, in file order). Every length is checked against what is left of
 //! the file or the chunk, and a chunk's uncompressed size against [`MAX_CHUNK_BYTES`], so
 //! a damaged or hostile file is an error naming the byte offset, never a huge allocation.
-//! Messages come out in record-time order (stable), as rosbag and rosbags iterate them.
+//! Messages come out in file order with their record times.
 //!
-//! [`Ros1Reader`] reads ROS 1 message serialization (little-endian, packed, strings and
-//! arrays with a `u32` length).
+//! [`scan_as_cdr`] turns the messages into ROS 2 CDR ([`super::ros1`]), so that a ROS 1
+//! bag reads like a ROS 2 recording.
 
 use std::collections::HashMap;
 use std::io::Read;
@@ -50,26 +50,8 @@ pub struct Connection {
     pub topic: String,
     /// Message type (`geometry_msgs/PoseStamped`).
     pub msg_type: String,
-}
-
-/// A message: its connection, record time and serialized bytes.
-#[derive(Clone, Debug)]
-pub struct Message {
-    /// Connection id.
-    pub conn: u32,
-    /// Record time.
-    pub time: Nanos,
-    /// ROS 1 serialized message.
-    pub data: Vec<u8>,
-}
-
-/// What [`read`] returns.
-#[derive(Clone, Debug, Default)]
-pub struct Bag {
-    /// Connections by id.
-    pub connections: HashMap<u32, Connection>,
-    /// The selected messages, in record-time order.
-    pub messages: Vec<Message>,
+    /// The full message definition (`message_definition`), nested types included.
+    pub definition: String,
 }
 
 /// The fields of a record header.
@@ -137,10 +119,14 @@ fn records(bytes: &[u8], base: u64) -> impl Iterator<Item = Result<(u64, &[u8], 
     })
 }
 
-/// Reads a bag, keeping the messages of the connections `keep` accepts (by topic and
-/// type). The file is read record by record (records not needed are skipped), so memory
-/// holds one chunk and the kept messages.
-pub fn read(path: &Path, keep: impl Fn(&Connection) -> bool) -> Result<Bag, Bag1Error> {
+/// Reads a bag record by record in file order (records not needed are skipped, so memory
+/// holds one chunk), calling `on_message` with each message of a connection `keep`
+/// accepts; returns the connections.
+pub fn scan(
+    path: &Path,
+    keep: impl Fn(&Connection) -> bool,
+    mut on_message: impl FnMut(&Connection, Nanos, &[u8]),
+) -> Result<HashMap<u32, Connection>, Bag1Error> {
     use std::io::{BufReader, Seek, SeekFrom};
     let name = path.display().to_string();
     let io = |source| Bag1Error::Io {
@@ -162,16 +148,16 @@ pub fn read(path: &Path, keep: impl Fn(&Connection) -> bool) -> Result<Bag, Bag1
             String::from_utf8_lossy(&magic[..got])
         )));
     }
-    let mut bag = Bag::default();
+    let mut connections: HashMap<u32, Connection> = HashMap::new();
     let mut kept: HashMap<u32, bool> = HashMap::new();
     let mut chunk = Vec::new();
     let mut data = Vec::new();
     let mut pos = MAGIC.len() as u64;
-    let on_record = |bag: &mut Bag,
-                     kept: &mut HashMap<u32, bool>,
-                     at: u64,
-                     f: &HashMap<&str, &[u8]>,
-                     data: &[u8]|
+    let mut on_record = |connections: &mut HashMap<u32, Connection>,
+                         kept: &mut HashMap<u32, bool>,
+                         at: u64,
+                         f: &HashMap<&str, &[u8]>,
+                         data: &[u8]|
      -> Result<(), String> {
         match f.get("op").and_then(|o| o.first()) {
             Some(0x07) => {
@@ -180,25 +166,25 @@ pub fn read(path: &Path, keep: impl Fn(&Connection) -> bool) -> Result<Bag, Bag1
                 let topic = str_field(f, "topic").unwrap_or_default();
                 let inner = fields(data).ok_or(format!("at byte {at}: bad connection header"))?;
                 let msg_type = str_field(&inner, "type").unwrap_or_default();
+                let definition = str_field(&inner, "message_definition").unwrap_or_default();
                 let c = Connection {
                     id,
                     topic,
                     msg_type,
+                    definition,
                 };
                 kept.insert(id, keep(&c));
-                bag.connections.insert(id, c);
+                connections.insert(id, c);
             }
             Some(0x02) => {
                 let conn =
                     u32_field(f, "conn").ok_or(format!("at byte {at}: message without conn"))?;
                 let time =
                     time_field(f, "time").ok_or(format!("at byte {at}: message without time"))?;
-                if kept.get(&conn).copied().unwrap_or(false) {
-                    bag.messages.push(Message {
-                        conn,
-                        time,
-                        data: data.to_vec(),
-                    });
+                if kept.get(&conn).copied().unwrap_or(false)
+                    && let Some(c) = connections.get(&conn)
+                {
+                    on_message(c, time, data);
                 }
             }
             _ => {}
@@ -244,7 +230,7 @@ pub fn read(path: &Path, keep: impl Fn(&Connection) -> bool) -> Result<Bag, Bag1
         data.clear();
         (&mut r).take(dl).read_to_end(&mut data).map_err(io)?;
         if op != Some(0x05) {
-            on_record(&mut bag, &mut kept, at, &f, &data).map_err(&err)?;
+            on_record(&mut connections, &mut kept, at, &f, &data).map_err(&err)?;
             continue;
         }
         let compression = str_field(&f, "compression").unwrap_or_default();
@@ -288,81 +274,124 @@ pub fn read(path: &Path, keep: impl Fn(&Connection) -> bool) -> Result<Bag, Bag1
                     "in the chunk at byte {at}, at byte {iat}: bad record header"
                 ))
             })?;
-            on_record(&mut bag, &mut kept, iat, &fi, id)
+            on_record(&mut connections, &mut kept, iat, &fi, id)
                 .map_err(|e| err(format!("in the chunk at byte {at}, {e}")))?;
         }
     }
-    bag.messages.sort_by_key(|m| m.time);
-    Ok(bag)
+    Ok(connections)
 }
 
-/// Reads ROS 1 serialized fields.
-#[derive(Debug)]
-pub struct Ros1Reader<'a> {
-    data: &'a [u8],
-    pos: usize,
-}
+/// Most transcoding problems listed in a scan's damage report (the rest are counted).
+const MAX_LISTED: usize = 20;
 
-impl<'a> Ros1Reader<'a> {
-    /// A reader at the start of `data`.
-    pub fn new(data: &'a [u8]) -> Self {
-        Ros1Reader { data, pos: 0 }
+/// [`scan`] as a ROS 2 recording: each connection becomes a CDR channel of its ROS 2 type
+/// name, each message is transcoded ([`super::ros1::Definitions`]) and delivered with its
+/// record time as log and publish time (what the robot's recorder saw: the arrival). A
+/// message that its definition does not describe is left out and listed in the summary's
+/// damage. This is how `vinebench replay` and `vinebench score bag` read ROS 1 bags.
+pub fn scan_as_cdr<F>(
+    path: &Path,
+    mut on_message: F,
+) -> Result<super::reader::McapSummary, super::RecordingError>
+where
+    F: FnMut(&super::reader::ChannelInfo, &super::reader::RawMessage<'_>),
+{
+    use super::reader::{ChannelInfo, Damage, McapSummary, RawMessage};
+    use std::sync::Arc;
+    let mut channels: HashMap<u32, (Arc<ChannelInfo>, Result<super::ros1::Definitions, String>)> =
+        HashMap::new();
+    let mut summary = McapSummary {
+        profile: "ros1".into(),
+        library: "rosbag (ROS 1 bag 2.0)".into(),
+        file_bytes: std::fs::metadata(path).map(|m| m.len()).unwrap_or(0),
+        ..McapSummary::default()
+    };
+    let mut damage = Damage::default();
+    let mut sequence = 0u32;
+    let mut too_many = false;
+    let result = scan(
+        path,
+        |_| true,
+        |c, time, data| {
+            let n = channels.len();
+            let (info, defs) = channels.entry(c.id).or_insert_with(|| {
+                let id = u16::try_from(n).unwrap_or(u16::MAX);
+                too_many |= n > usize::from(u16::MAX);
+                let info = Arc::new(ChannelInfo {
+                    id,
+                    topic: c.topic.clone(),
+                    message_encoding: "cdr".into(),
+                    schema_name: super::ros1::ros2_type_name(&c.msg_type),
+                    schema_encoding: "ros1msg".into(),
+                });
+                (
+                    info,
+                    super::ros1::Definitions::parse(&c.msg_type, &c.definition),
+                )
+            });
+            let cdr = defs
+                .as_ref()
+                .map_err(Clone::clone)
+                .and_then(|d| d.transcode(data));
+            match cdr {
+                Ok(cdr) => {
+                    sequence = sequence.wrapping_add(1);
+                    summary.messages += 1;
+                    summary.unverified_messages += 1;
+                    *summary
+                        .messages_per_topic
+                        .entry(info.topic.clone())
+                        .or_default() += 1;
+                    on_message(
+                        info,
+                        &RawMessage {
+                            sequence,
+                            log_time: time,
+                            publish_time: time,
+                            data: &cdr,
+                            verified: false,
+                        },
+                    );
+                }
+                Err(e) => {
+                    if damage.problems.len() < MAX_LISTED {
+                        damage.problems.push(format!(
+                            "{} ({}) at record time {time}: {e}",
+                            info.topic, c.msg_type
+                        ));
+                    } else {
+                        damage.problems_not_listed += 1;
+                    }
+                    damage.messages_lost = Some(damage.messages_lost.unwrap_or(0) + 1);
+                }
+            }
+        },
+    );
+    let name = path.display().to_string();
+    result.map_err(|e| match e {
+        Bag1Error::Io { source, .. } => super::RecordingError::Io {
+            path: name.clone(),
+            source,
+        },
+        Bag1Error::Format { problem, .. } => super::RecordingError::Unusable {
+            path: name.clone(),
+            problem,
+        },
+    })?;
+    if too_many {
+        return Err(super::RecordingError::Unusable {
+            path: name,
+            problem: "more than 65536 connections".into(),
+        });
     }
-
-    fn take(&mut self, n: usize, field: &str) -> Result<&'a [u8], String> {
-        let end = self.pos.checked_add(n).filter(|&e| e <= self.data.len());
-        let Some(end) = end else {
-            return Err(format!(
-                "field {field}: {n} bytes needed at byte {}, {} left",
-                self.pos,
-                self.data.len() - self.pos
-            ));
-        };
-        let s = &self.data[self.pos..end];
-        self.pos = end;
-        Ok(s)
+    summary.channels = channels
+        .into_values()
+        .map(|(info, _)| (info.id, info))
+        .collect();
+    if damage != Damage::default() {
+        summary.damage = Some(damage);
     }
-
-    /// `uint32`.
-    pub fn u32(&mut self, field: &str) -> Result<u32, String> {
-        Ok(u32::from_le_bytes(
-            self.take(4, field)?
-                .try_into()
-                .map_err(|_| field.to_string())?,
-        ))
-    }
-
-    /// `float64`.
-    pub fn f64(&mut self, field: &str) -> Result<f64, String> {
-        Ok(f64::from_le_bytes(
-            self.take(8, field)?
-                .try_into()
-                .map_err(|_| field.to_string())?,
-        ))
-    }
-
-    /// `float64[N]`.
-    pub fn f64s<const N: usize>(&mut self, field: &str) -> Result<[f64; N], String> {
-        let mut out = [0.0; N];
-        for v in &mut out {
-            *v = self.f64(field)?;
-        }
-        Ok(out)
-    }
-
-    /// `string`.
-    pub fn string(&mut self, field: &str) -> Result<&'a str, String> {
-        let n = self.u32(field)? as usize;
-        std::str::from_utf8(self.take(n, field)?).map_err(|_| format!("field {field}: not UTF-8"))
-    }
-
-    /// `std_msgs/Header`: `(stamp sec, stamp nsec, frame_id)`.
-    pub fn header(&mut self) -> Result<(u32, u32, &'a str), String> {
-        self.u32("header.seq")?;
-        let sec = self.u32("header.stamp.sec")?;
-        let nsec = self.u32("header.stamp.nsec")?;
-        Ok((sec, nsec, self.string("header.frame_id")?))
-    }
+    Ok(summary)
 }
 
 #[cfg(test)]
@@ -436,14 +465,14 @@ mod tests {
     }
 
     #[test]
-    fn chunks_plain_and_bz2_give_the_messages_in_time_order() {
+    fn chunks_plain_and_bz2_give_the_messages_in_file_order() {
         for c in ["none", "bz2"] {
             let f = tempfile::NamedTempFile::new().unwrap();
             std::fs::write(f.path(), bag(c)).unwrap();
-            let b = read(f.path(), |_| true).unwrap();
-            assert_eq!(b.connections[&0].msg_type, "geometry_msgs/PoseStamped");
-            let got: Vec<(i64, u8)> = b.messages.iter().map(|m| (m.time.0, m.data[0])).collect();
-            assert_eq!(got, vec![(10_000_000_000, 1), (20_000_000_000, 2)], "{c}");
+            let mut got = Vec::new();
+            let conns = scan(f.path(), |_| true, |_, t, d| got.push((t.0, d[0]))).unwrap();
+            assert_eq!(conns[&0].msg_type, "geometry_msgs/PoseStamped");
+            assert_eq!(got, vec![(20_000_000_000, 2), (10_000_000_000, 1)], "{c}");
         }
     }
 
@@ -454,13 +483,17 @@ mod tests {
         b.truncate(n - 3);
         let f = tempfile::NamedTempFile::new().unwrap();
         std::fs::write(f.path(), &b).unwrap();
-        let e = read(f.path(), |_| true).unwrap_err().to_string();
+        let e = scan(f.path(), |_| true, |_, _, _| {})
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("at byte 13") && e.contains("cut off") || e.contains("left"),
             "{e}"
         );
         std::fs::write(f.path(), b"#ROSBAG V1.2\nxx").unwrap();
-        let e = read(f.path(), |_| true).unwrap_err().to_string();
+        let e = scan(f.path(), |_| true, |_, _, _| {})
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("not a ROS 1 bag"), "{e}");
     }
 }

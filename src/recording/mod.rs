@@ -47,12 +47,14 @@ pub mod bag1;
 pub mod cdr;
 pub mod reader;
 pub mod ros;
+pub mod ros1;
 pub mod schema;
 pub mod writer;
 
 pub use reader::{ChannelInfo, Damage, LostChunk, McapSummary, RawMessage};
 pub use writer::{McapSink, RecordItem, Recorder, SinkOptions};
 
+use std::path::Path;
 use thiserror::Error;
 use vinebench_msgs::Nanos;
 
@@ -218,5 +220,71 @@ impl RecordingError {
                 source: Box::new(e),
             },
         }
+    }
+}
+
+/// The MCAP file of a rosbag2 folder (its one `.mcap`), or `path` itself.
+pub fn rosbag2_mcap(path: &Path) -> Result<std::path::PathBuf, RecordingError> {
+    if !path.is_dir() {
+        return Ok(path.to_path_buf());
+    }
+    let name = path.display().to_string();
+    let mut found: Vec<std::path::PathBuf> = std::fs::read_dir(path)
+        .map_err(|source| RecordingError::Io {
+            path: name.clone(),
+            source,
+        })?
+        .flatten()
+        .map(|e| e.path())
+        .collect();
+    found.sort();
+    let mcaps: Vec<&std::path::PathBuf> = found
+        .iter()
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    match mcaps.as_slice() {
+        [one] => Ok((*one).clone()),
+        [] => {
+            let names: Vec<String> = found
+                .iter()
+                .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+                .collect();
+            Err(RecordingError::Unusable {
+                path: name,
+                problem: format!(
+                    "a folder without an MCAP file ({}); vinebench reads rosbag2 folders with \
+                     MCAP storage (convert .db3 with `ros2 bag convert`)",
+                    names.join(", ")
+                ),
+            })
+        }
+        _ => Err(RecordingError::Unusable {
+            path: name,
+            problem: format!("{} MCAP files: split bags are not read yet", mcaps.len()),
+        }),
+    }
+}
+
+/// Whether `path` is a ROS 1 bag (by its first bytes).
+pub fn is_ros1_bag(path: &Path) -> bool {
+    let mut magic = [0u8; 9];
+    std::fs::File::open(path)
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic))
+        .is_ok()
+        && &magic == b"#ROSBAG V"
+}
+
+/// Every message of a recording, whatever robots record: an MCAP file, a rosbag2 folder
+/// with MCAP storage, or a ROS 1 bag (transcoded to CDR, [`bag1::scan_as_cdr`]); see
+/// [`reader::scan_file`].
+pub fn scan_any<F>(path: &Path, on_message: F) -> Result<reader::McapSummary, RecordingError>
+where
+    F: FnMut(&reader::ChannelInfo, &reader::RawMessage<'_>),
+{
+    let file = rosbag2_mcap(path)?;
+    if is_ros1_bag(&file) {
+        bag1::scan_as_cdr(&file, on_message)
+    } else {
+        reader::scan_file(&file, on_message)
     }
 }

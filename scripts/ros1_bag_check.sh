@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# A robot's ROS 1 bag replays like the ROS 2 recording it was converted from: a short
+# simulated run's recording.mcap is converted to ROS 1 bags by rosbags (an independent
+# implementation, `rosbags-convert`, chunks uncompressed, bz2 and lz4); `vinebench replay`
+# of each bag must give byte-identical estimates to the replay of the MCAP with the same
+# topic mapping, and `vinebench score ape bag` the same numbers as `score ape bag2`.
+#
+#   bash scripts/ros1_bag_check.sh        # uses/creates target/evo-venv (evo brings rosbags)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+VENV="target/evo-venv"
+WORK="target/ros1-bag-check"
+cargo build --release --locked --bin vinebench
+if ! "$VENV/bin/python" -c "import rosbags" 2>/dev/null; then
+    python3 -m venv "$VENV"
+    "$VENV/bin/pip" install --quiet --disable-pip-version-check "evo==1.38.1"
+fi
+B=./target/release/vinebench
+rm -rf "$WORK"
+mkdir -p "$WORK"
+$B run tests/data/short-loop.toml --quiet --out "$WORK/run" || test $? -eq 1
+cat > "$WORK/map.toml" <<'TOML'
+name = "ros1-bag-check"
+body_frame = "base_link"
+[topics]
+imu = "/imu/data"
+gnss_fix = "/gnss/fix"
+gnss_velocity = "/gnss/fix_velocity"
+tracking_odom = "/tracking_camera/odom/sample"
+ground_truth = "/ground_truth/odom"
+[estimators]
+run = ["eif", "gnss", "tracking_camera"]
+TOML
+$B replay "$WORK/run/recording.mcap" --config "$WORK/map.toml" --out "$WORK/from-mcap" > /dev/null
+for compress in none bz2 lz4; do
+    bag="$WORK/run-$compress.bag"
+    "$VENV/bin/rosbags-convert" --src "$WORK/run/recording.mcap" --dst "$bag" --compress "$compress" > /dev/null
+    $B replay "$bag" --config "$WORK/map.toml" --out "$WORK/from-$compress" > /dev/null
+    for f in estimate_eif.tum estimate_gnss.tum estimate_tracking_camera.tum ground_truth.tum; do
+        cmp "$WORK/from-mcap/$f" "$WORK/from-$compress/$f"
+    done
+    a=$($B score ape bag "$bag" /ground_truth/odom /estimate/eif/odom -a 2> /dev/null)
+    b=$($B score ape bag2 "$WORK/run/recording.mcap" /ground_truth/odom /estimate/eif/odom -a 2> /dev/null)
+    [ "$a" = "$b" ]
+    echo "ROS 1 bag ($compress chunks, written by rosbags): replay and score equal the MCAP's"
+done
