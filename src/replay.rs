@@ -664,10 +664,28 @@ fn static_transforms(body: &str, tf: &[TransformStamped]) -> StaticTransforms {
     out
 }
 
+/// A frame name as tf keys it: ROS 1's leading `/` dropped (as tf2 does, so `"/gps"`
+/// needs no rename), then renamed by the mapping's `[frames]` (given with or without the
+/// slash).
 fn rename(frames: &BTreeMap<String, String>, f: &mut FrameId) {
-    if let Some(to) = frames.get(f.as_str()) {
-        *f = FrameId::new(to);
+    let name = f.as_str();
+    let bare = bare_frame(name);
+    let to = frames.get(name).or_else(|| {
+        frames
+            .iter()
+            .find(|(k, _)| bare_frame(k) == bare)
+            .map(|(_, v)| v)
+    });
+    if let Some(to) = to {
+        *f = FrameId::new(bare_frame(to));
+    } else if bare.len() != name.len() {
+        *f = FrameId::new(bare);
     }
+}
+
+/// `name` without a leading `/`.
+fn bare_frame(name: &str) -> &str {
+    name.strip_prefix('/').unwrap_or(name)
 }
 
 fn rename_message(frames: &BTreeMap<String, String>, m: &mut Message) {
@@ -988,7 +1006,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     }
 
     // Static transforms.
-    let body = cfg.body_frame.as_deref().unwrap_or(names::BASE_LINK);
+    let body = bare_frame(cfg.body_frame.as_deref().unwrap_or(names::BASE_LINK));
     let mut tf: Vec<TransformStamped> = Vec::new();
     for e in std::mem::take(&mut got.entries) {
         match e {
@@ -1587,6 +1605,24 @@ mod tests {
         let imu = st.body_from("imu_link").unwrap();
         assert!((imu.translation.x - 0.3).abs() < 1e-12);
         assert!(static_transforms("nowhere", &tf).body_from.is_empty());
+    }
+
+    #[test]
+    fn leading_slashes_are_dropped_as_tf2_drops_them() {
+        let frames = BTreeMap::from([("/camera".to_string(), "cam_link".to_string())]);
+        let mut tf = [
+            t("/base_link", "/gps", 1.0, 0.0),
+            t("base_link", "camera", 0.5, 0.0),
+        ];
+        for x in &mut tf {
+            rename(&frames, &mut x.parent);
+            rename(&frames, &mut x.child);
+        }
+        let st = static_transforms("base_link", &tf);
+        assert!(st.body_from("gps").is_some());
+        // The mapping's key matches with or without the slash.
+        assert!(st.body_from("cam_link").is_some());
+        assert_eq!(bare_frame("/a/b"), "a/b");
     }
 
     #[test]
