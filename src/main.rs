@@ -505,6 +505,9 @@ fn dispatch(cmd: Command) -> Result<u8> {
                     .unwrap_or_else(|| "no ground truth".into());
                 outln!("{:<16} {:>7} poses  {ate}", s.name, s.poses);
             }
+            for n in r.estimator_notes() {
+                outln!("  note: {n}");
+            }
             for m in &r.maps {
                 let score = m
                     .metric("map_accuracy_m")

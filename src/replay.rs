@@ -100,6 +100,76 @@ pub struct TopicMap {
     pub ground_truth: Option<String>,
 }
 
+/// Most notes of one source listed on the console and in `report.md` (all are in
+/// `report.json`).
+pub const NOTES_LISTED: usize = 10;
+
+impl ReplayReport {
+    /// What the estimators did not use and why, one line each: messages dropped before
+    /// them (by recorded topic and reason), each source's rejected messages by reason and
+    /// its first [`NOTES_LISTED`] notes. For the console and `report.md`.
+    pub fn estimator_notes(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.late_dropped > 0 {
+            out.push(format!(
+                "{} message(s) dropped: later than the re-ordering window",
+                self.late_dropped
+            ));
+        }
+        for (k, n) in &self.invalid_dropped {
+            out.push(format!("{n} message(s) dropped as invalid: {k}"));
+        }
+        out.extend(self.stage_notes.iter().cloned());
+        for src in &self.sources {
+            let rejected: Vec<String> = src
+                .rejected
+                .iter()
+                .map(|(why, n)| format!("{n} {why}"))
+                .collect();
+            if !rejected.is_empty() {
+                out.push(format!("{}: not used: {}", src.name, rejected.join(", ")));
+            }
+            for note in src.notes.iter().take(NOTES_LISTED) {
+                out.push(format!("{}: {note}", src.name));
+            }
+            if src.notes.len() > NOTES_LISTED {
+                out.push(format!(
+                    "{}: {} more note(s) in report.json",
+                    src.name,
+                    src.notes.len() - NOTES_LISTED
+                ));
+            }
+        }
+        out
+    }
+}
+
+impl TopicMap {
+    /// The recorded topic that feeds the input of internal topic `internal` (the
+    /// estimators name messages by their input: `/gnss/fix`, ...), so that reports name
+    /// what is in the user's recording; `internal` itself when unmapped (a vinebench
+    /// recording records them under those names).
+    pub fn recorded<'a>(&'a self, internal: &'a str) -> &'a str {
+        let mapped = match internal {
+            "/imu/data" => &self.imu,
+            "/gnss/fix" => &self.gnss_fix,
+            "/gnss/fix_velocity" => &self.gnss_velocity,
+            "/tracking_camera/odom/sample" => &self.tracking_odom,
+            "/wheel/odom" => &self.wheel_odom,
+            _ => &None,
+        };
+        mapped.as_deref().unwrap_or(internal)
+    }
+
+    /// A `"<internal topic> <field>"` key with the recorded topic instead.
+    fn recorded_key(&self, key: &str) -> String {
+        match key.split_once(' ') {
+            Some((topic, field)) => format!("{} {field}", self.recorded(topic)),
+            None => self.recorded(key).to_string(),
+        }
+    }
+}
+
 /// A topic-mapping file for `vinebench replay --config` (see
 /// `docs/field-topics.example.toml`).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -1410,7 +1480,12 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         missing_topics,
         late_in_file: order.late,
         late_dropped: out.stage.late_total(),
-        invalid_dropped: out.stage.invalid_by_topic_field(),
+        invalid_dropped: out
+            .stage
+            .invalid_by_topic_field()
+            .into_iter()
+            .map(|(k, n)| (cfg.topics.recorded_key(&k), n))
+            .collect(),
         stage_notes: out.stage.notes.clone(),
         ground_truth_poses: truth.len(),
         ground_truth: metrics::closed_loop(&truth).ok(),
@@ -1461,6 +1536,13 @@ fn write_report(
     }
     for m in &report.missing_topics {
         let _ = writeln!(md, "- missing topic: {m}");
+    }
+    let notes = report.estimator_notes();
+    if !notes.is_empty() {
+        let _ = writeln!(md, "\n## Estimator notes\n");
+        for n in &notes {
+            let _ = writeln!(md, "- {n}");
+        }
     }
     let _ = writeln!(
         md,
@@ -1605,6 +1687,18 @@ mod tests {
         let imu = st.body_from("imu_link").unwrap();
         assert!((imu.translation.x - 0.3).abs() < 1e-12);
         assert!(static_transforms("nowhere", &tf).body_from.is_empty());
+    }
+
+    #[test]
+    fn reports_name_the_recorded_topics() {
+        let t = TopicMap {
+            gnss_fix: Some("/fix".into()),
+            imu: Some("/imu/raw".into()),
+            ..TopicMap::default()
+        };
+        assert_eq!(t.recorded_key("/gnss/fix latitude"), "/fix latitude");
+        assert_eq!(t.recorded("/imu/data"), "/imu/raw");
+        assert_eq!(t.recorded("/wheel/odom"), "/wheel/odom");
     }
 
     #[test]

@@ -994,6 +994,17 @@ fn a_field_recording_replays_through_a_topic_mapping() {
         "{:?}",
         r.report.skipped
     );
+    // What the estimators did is said in report.md too, not only in report.json.
+    let notes = r.report.estimator_notes();
+    assert!(
+        notes.iter().any(|n| n.starts_with("eif: initialized at")),
+        "{notes:?}"
+    );
+    let md = std::fs::read_to_string(tmp.path().join("field/report.md")).unwrap();
+    assert!(
+        md.contains("## Estimator notes") && md.contains("- eif: initialized at"),
+        "{md}"
+    );
 
     // A topic of the wrong type is named, with what was expected.
     std::fs::write(&map, "[topics]\nimu = \"/gnss/fix\"\n").unwrap();
