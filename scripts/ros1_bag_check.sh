@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
-# A robot's ROS 1 bag replays like the ROS 2 recording it was converted from: a short
-# simulated run's recording.mcap is converted to ROS 1 bags by rosbags (an independent
-# implementation, `rosbags-convert`, chunks uncompressed, bz2 and lz4); `vinebench replay`
-# of each bag must give byte-identical estimates to the replay of the MCAP with the same
-# topic mapping, and `vinebench score ape bag` the same numbers as `score ape bag2`.
+# A robot's ROS 1 bag, and a rosbag2 folder with sqlite3 storage, replay like the MCAP they
+# were converted from: a short simulated run's recording.mcap is converted by rosbags (an
+# independent implementation, `rosbags-convert`) to ROS 1 bags (chunks uncompressed, bz2
+# and lz4) and to a rosbag2 .db3 folder; `vinebench replay` of each must give
+# byte-identical estimates to the replay of the MCAP with the same topic mapping, and
+# `vinebench score ape bag|bag2` the same numbers as on the MCAP.
 #
 #   bash scripts/ros1_bag_check.sh        # uses/creates target/evo-venv (evo brings rosbags)
 set -euo pipefail
@@ -45,3 +46,13 @@ for compress in none bz2 lz4; do
     [ "$a" = "$b" ]
     echo "ROS 1 bag ($compress chunks, written by rosbags): replay and score equal the MCAP's"
 done
+db3="$WORK/run-db3"
+"$VENV/bin/rosbags-convert" --src "$WORK/run/recording.mcap" --dst "$db3" --dst-storage sqlite3 > /dev/null
+$B replay "$db3" --config "$WORK/map.toml" --out "$WORK/from-db3" > /dev/null
+for f in estimate_eif.tum estimate_gnss.tum estimate_tracking_camera.tum ground_truth.tum; do
+    cmp "$WORK/from-mcap/$f" "$WORK/from-db3/$f"
+done
+a=$($B score ape bag2 "$db3" /ground_truth/odom /estimate/eif/odom -a 2> /dev/null)
+b=$($B score ape bag2 "$WORK/run/recording.mcap" /ground_truth/odom /estimate/eif/odom -a 2> /dev/null)
+[ "$a" = "$b" ]
+echo "rosbag2 folder (sqlite3 storage, written by rosbags): replay and score equal the MCAP's"

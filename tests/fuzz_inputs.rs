@@ -337,6 +337,20 @@ proptest! {
     }
 
     #[test]
+    fn rosbag2_sqlite_mutants(muts in mutations(4)) {
+        let dir = tempfile::tempdir().unwrap();
+        let seed = dir.path().join("seed.db3");
+        db3_seed(&seed);
+        let bag = dir.path().join("bag");
+        std::fs::create_dir(&bag).unwrap();
+        std::fs::write(bag.join("bag_0.db3"), mutate(&std::fs::read(&seed).unwrap(), &muts)).unwrap();
+        no_panic(&format!("{muts:?}"), || {
+            let _ = vinebench::recording::scan_any(&bag, |_, _| {});
+            let _ = vinebench::scoring::evo::bag::read_topic(&bag, "/pose");
+        });
+    }
+
+    #[test]
     fn mesh_mutants(muts in mutations(3), kind in 0..3usize) {
         let dir = tempfile::tempdir().unwrap();
         let seeds = mesh_seeds();
@@ -379,6 +393,35 @@ fn evo_seeds() -> Vec<(vinebench::scoring::evo::Format, Vec<u8>)> {
         (Format::Kitti, kitti.into_bytes()),
         (Format::Euroc, euroc.into_bytes()),
     ]
+}
+
+/// A rosbag2 sqlite3 file with 20 `geometry_msgs/msg/PoseStamped` on `/pose` (CDR).
+fn db3_seed(path: &Path) {
+    let db = rusqlite::Connection::open(path).unwrap();
+    db.execute_batch(
+        "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL, \
+         serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL); \
+         CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL, \
+         timestamp INTEGER NOT NULL, data BLOB NOT NULL); \
+         INSERT INTO topics VALUES (1, '/pose', 'geometry_msgs/msg/PoseStamped', 'cdr', '');",
+    )
+    .unwrap();
+    for k in 0..20i64 {
+        // CDR: encapsulation, stamp (sec, nanosec), frame_id "map", pose.
+        let mut d = vec![0u8, 1, 0, 0];
+        d.extend((100 + k as i32).to_le_bytes());
+        d.extend(0u32.to_le_bytes());
+        d.extend(4u32.to_le_bytes());
+        d.extend(b"map\0");
+        for v in [k as f64, 0.5, 0.0, 0.0, 0.0, 0.0, 1.0] {
+            d.extend(v.to_le_bytes());
+        }
+        db.execute(
+            "INSERT INTO messages(topic_id, timestamp, data) VALUES (1, ?1, ?2)",
+            rusqlite::params![(100 + k) * 1_000_000_000, d],
+        )
+        .unwrap();
+    }
 }
 
 /// A ROS 1 bag of `geometry_msgs/PoseStamped` on `/pose` and a `tf2_msgs/TFMessage` on
@@ -548,6 +591,11 @@ fn the_bag_seeds_read_whole() {
         // Every 0.1 s from 100.000000005 s to 119.000000005 s.
         assert_eq!(tf.poses.len(), 191, "{c}");
     }
+    let dir = tempfile::tempdir().unwrap();
+    db3_seed(&dir.path().join("bag_0.db3"));
+    let poses = vinebench::scoring::evo::bag::read_topic(dir.path(), "/pose").unwrap();
+    assert_eq!(poses.poses.len(), 20);
+    assert_eq!(poses.stamps.as_ref().unwrap()[3], 103.0);
     for (format, seed) in evo_seeds() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("seed");

@@ -45,6 +45,7 @@
 
 pub mod bag1;
 pub mod cdr;
+pub mod db3;
 pub mod reader;
 pub mod ros;
 pub mod ros1;
@@ -223,10 +224,28 @@ impl RecordingError {
     }
 }
 
-/// The MCAP file of a rosbag2 folder (its one `.mcap`), or `path` itself.
-pub fn rosbag2_mcap(path: &Path) -> Result<std::path::PathBuf, RecordingError> {
+/// What a recording path holds.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Storage {
+    /// An MCAP file (also the one of a rosbag2 folder with MCAP storage).
+    Mcap(std::path::PathBuf),
+    /// A ROS 1 bag.
+    Ros1(std::path::PathBuf),
+    /// The `.db3` files of a rosbag2 folder with sqlite3 storage, in name order.
+    Sqlite(Vec<std::path::PathBuf>),
+}
+
+/// What `path` is: a ROS 1 bag, an MCAP file, a `.db3`, or a rosbag2 folder (its `.mcap`
+/// or `.db3` files).
+pub fn storage(path: &Path) -> Result<Storage, RecordingError> {
     if !path.is_dir() {
-        return Ok(path.to_path_buf());
+        return Ok(if is_ros1_bag(path) {
+            Storage::Ros1(path.to_path_buf())
+        } else if db3::is_sqlite(path) {
+            Storage::Sqlite(vec![path.to_path_buf()])
+        } else {
+            Storage::Mcap(path.to_path_buf())
+        });
     }
     let name = path.display().to_string();
     let mut found: Vec<std::path::PathBuf> = std::fs::read_dir(path)
@@ -238,13 +257,18 @@ pub fn rosbag2_mcap(path: &Path) -> Result<std::path::PathBuf, RecordingError> {
         .map(|e| e.path())
         .collect();
     found.sort();
-    let mcaps: Vec<&std::path::PathBuf> = found
-        .iter()
-        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
-        .collect();
-    match mcaps.as_slice() {
-        [one] => Ok((*one).clone()),
-        [] => {
+    let with = |ext: &str| -> Vec<std::path::PathBuf> {
+        found
+            .iter()
+            .filter(|p| p.extension().is_some_and(|e| e == ext))
+            .cloned()
+            .collect()
+    };
+    let (mcaps, db3s) = (with("mcap"), with("db3"));
+    match (mcaps.as_slice(), db3s.is_empty()) {
+        ([one], _) => Ok(Storage::Mcap(one.clone())),
+        ([], false) => Ok(Storage::Sqlite(db3s)),
+        ([], true) => {
             let names: Vec<String> = found
                 .iter()
                 .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
@@ -252,15 +276,18 @@ pub fn rosbag2_mcap(path: &Path) -> Result<std::path::PathBuf, RecordingError> {
             Err(RecordingError::Unusable {
                 path: name,
                 problem: format!(
-                    "a folder without an MCAP file ({}); vinebench reads rosbag2 folders with \
-                     MCAP storage (convert .db3 with `ros2 bag convert`)",
+                    "a folder without a recording ({}): expected a rosbag2 folder with .mcap \
+                     or .db3 storage",
                     names.join(", ")
                 ),
             })
         }
         _ => Err(RecordingError::Unusable {
             path: name,
-            problem: format!("{} MCAP files: split bags are not read yet", mcaps.len()),
+            problem: format!(
+                "{} MCAP files: split MCAP bags are not read yet",
+                mcaps.len()
+            ),
         }),
     }
 }
@@ -275,16 +302,15 @@ pub fn is_ros1_bag(path: &Path) -> bool {
 }
 
 /// Every message of a recording, whatever robots record: an MCAP file, a rosbag2 folder
-/// with MCAP storage, or a ROS 1 bag (transcoded to CDR, [`bag1::scan_as_cdr`]); see
-/// [`reader::scan_file`].
+/// (MCAP or sqlite3 storage, [`db3`]), or a ROS 1 bag (transcoded to CDR,
+/// [`bag1::scan_as_cdr`]); see [`reader::scan_file`].
 pub fn scan_any<F>(path: &Path, on_message: F) -> Result<reader::McapSummary, RecordingError>
 where
     F: FnMut(&reader::ChannelInfo, &reader::RawMessage<'_>),
 {
-    let file = rosbag2_mcap(path)?;
-    if is_ros1_bag(&file) {
-        bag1::scan_as_cdr(&file, on_message)
-    } else {
-        reader::scan_file(&file, on_message)
+    match storage(path)? {
+        Storage::Ros1(f) => bag1::scan_as_cdr(&f, on_message),
+        Storage::Sqlite(files) => db3::scan(&files, on_message),
+        Storage::Mcap(f) => reader::scan_file(&f, on_message),
     }
 }
