@@ -100,12 +100,7 @@ where
                 continue;
             };
             sequence = sequence.wrapping_add(1);
-            summary.messages += 1;
-            summary.unverified_messages += 1;
-            *summary
-                .messages_per_topic
-                .entry(info.topic.clone())
-                .or_default() += 1;
+            summary.count_unverified(&info.topic);
             on_message(
                 info,
                 &RawMessage {

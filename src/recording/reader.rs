@@ -275,6 +275,19 @@ pub struct McapSummary {
     pub damage: Option<Damage>,
 }
 
+impl McapSummary {
+    /// Counts one message delivered on `topic` that no CRC covered (how the readers of the
+    /// other storages, ROS 1 bags and `.db3`, account for what they deliver).
+    pub fn count_unverified(&mut self, topic: &str) {
+        self.messages += 1;
+        self.unverified_messages += 1;
+        *self
+            .messages_per_topic
+            .entry(topic.to_string())
+            .or_default() += 1;
+    }
+}
+
 // ---- parsing record bodies ----------------------------------------------------------
 
 /// A bounds-checked little-endian cursor over a record body; errors name the field.
