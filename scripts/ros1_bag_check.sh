@@ -34,25 +34,24 @@ ground_truth = "/ground_truth/odom"
 run = ["eif", "gnss", "tracking_camera"]
 TOML
 $B replay "$WORK/run/recording.mcap" --config "$WORK/map.toml" --out "$WORK/from-mcap" > /dev/null
+mcap_score=$($B score ape bag2 "$WORK/run/recording.mcap" /ground_truth/odom /estimate/eif/odom -a 2> /dev/null)
+
+# same_as_mcap RECORDING FORMAT NAME: replay and score of RECORDING equal the MCAP's.
+same_as_mcap() {
+    $B replay "$1" --config "$WORK/map.toml" --out "$WORK/from-$3" > /dev/null
+    for f in estimate_eif.tum estimate_gnss.tum estimate_tracking_camera.tum ground_truth.tum; do
+        cmp "$WORK/from-mcap/$f" "$WORK/from-$3/$f"
+    done
+    [ "$($B score ape "$2" "$1" /ground_truth/odom /estimate/eif/odom -a 2> /dev/null)" = "$mcap_score" ]
+}
+
 for compress in none bz2 lz4; do
     bag="$WORK/run-$compress.bag"
     "$VENV/bin/rosbags-convert" --src "$WORK/run/recording.mcap" --dst "$bag" --compress "$compress" > /dev/null
-    $B replay "$bag" --config "$WORK/map.toml" --out "$WORK/from-$compress" > /dev/null
-    for f in estimate_eif.tum estimate_gnss.tum estimate_tracking_camera.tum ground_truth.tum; do
-        cmp "$WORK/from-mcap/$f" "$WORK/from-$compress/$f"
-    done
-    a=$($B score ape bag "$bag" /ground_truth/odom /estimate/eif/odom -a 2> /dev/null)
-    b=$($B score ape bag2 "$WORK/run/recording.mcap" /ground_truth/odom /estimate/eif/odom -a 2> /dev/null)
-    [ "$a" = "$b" ]
+    same_as_mcap "$bag" bag "$compress"
     echo "ROS 1 bag ($compress chunks, written by rosbags): replay and score equal the MCAP's"
 done
 db3="$WORK/run-db3"
 "$VENV/bin/rosbags-convert" --src "$WORK/run/recording.mcap" --dst "$db3" --dst-storage sqlite3 > /dev/null
-$B replay "$db3" --config "$WORK/map.toml" --out "$WORK/from-db3" > /dev/null
-for f in estimate_eif.tum estimate_gnss.tum estimate_tracking_camera.tum ground_truth.tum; do
-    cmp "$WORK/from-mcap/$f" "$WORK/from-db3/$f"
-done
-a=$($B score ape bag2 "$db3" /ground_truth/odom /estimate/eif/odom -a 2> /dev/null)
-b=$($B score ape bag2 "$WORK/run/recording.mcap" /ground_truth/odom /estimate/eif/odom -a 2> /dev/null)
-[ "$a" = "$b" ]
+same_as_mcap "$db3" bag2 db3
 echo "rosbag2 folder (sqlite3 storage, written by rosbags): replay and score equal the MCAP's"
