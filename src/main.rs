@@ -155,7 +155,7 @@ enum Command {
         replace: bool,
     },
     /// Score trajectories against a reference as evo_ape / evo_rpe do, with their options
-    /// and numbers (TUM, KITTI, EuRoC).
+    /// and numbers (TUM, KITTI, EuRoC, ROS 1 bags, ROS 2 MCAP and rosbag2 folders).
     #[command(after_help = "Examples (each equals the evo command after it):\n  \
         vinebench score ape tum ground_truth.tum estimate_eif.tum -a\n      \
         evo_ape tum ground_truth.tum estimate_eif.tum -a\n  \
@@ -165,6 +165,8 @@ enum Command {
         evo_ape euroc V102_groundtruth.csv V102.txt -as --save_results r.zip\n  \
         vinebench score rpe tum gt.tum est.tum -d 10 -u m --all_pairs\n      \
         evo_rpe tum gt.tum est.tum -d 10 -u m --all_pairs\n  \
+        vinebench score ape bag2 run.mcap /ground_truth/odom /estimate/eif/odom -a\n      \
+        evo_ape bag2 run.mcap /ground_truth/odom /estimate/eif/odom -a\n  \
         vinebench score ape tum gt.tum eif.tum gnss.tum slam.tum -a   # one table of all three\n\n\
         The older form `vinebench score --ref REF EST [--align]` prints APE and RPE (translation) \
         as JSON.")]
