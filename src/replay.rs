@@ -25,7 +25,7 @@ use crate::recording::{self, RecordingError, topics};
 use crate::scenario::{LoadedScenario, ScenarioError};
 use crate::scoring::expect::ExpectationResult;
 use crate::scoring::{self, PoseSpool, Poses, SourceScore, SpoolWriter, metrics};
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::fmt::Write as _;
@@ -185,6 +185,10 @@ pub struct ReplayConfig {
     /// Frame renames: recorded frame name → the name the transforms use.
     #[serde(default)]
     pub frames: BTreeMap<String, String>,
+    /// `[[static_transforms]]`: extrinsics the recording lacks (or overrides of its
+    /// `/tf_static`), as `static_transform_publisher` takes them.
+    #[serde(default)]
+    pub static_transforms: Vec<StaticTransformEntry>,
     /// Geodetic origin of the ENU world frame (default: the first GNSS fix with a
     /// position).
     pub origin: Option<Geodetic>,
@@ -200,6 +204,62 @@ pub struct ReplayConfig {
     /// Expectations in the scenario language, on the estimate sources.
     #[serde(default)]
     pub expect: Vec<String>,
+}
+
+/// One `[[static_transforms]]` entry: `parent_from_child` as translation and either
+/// roll-pitch-yaw (rad, fixed axes x-y-z as ROS's `rpy`) or a quaternion `[x, y, z, w]`
+/// (neither: no rotation).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StaticTransformEntry {
+    /// Parent frame.
+    pub parent: String,
+    /// Child frame.
+    pub child: String,
+    /// Translation of the child in the parent frame, m.
+    #[serde(default)]
+    pub xyz: [f64; 3],
+    /// Roll, pitch, yaw, rad.
+    pub rpy: Option<[f64; 3]>,
+    /// Quaternion `[x, y, z, w]`.
+    pub quaternion: Option<[f64; 4]>,
+}
+
+impl StaticTransformEntry {
+    /// The transform, or what is wrong with the entry.
+    fn transform(&self) -> Result<TransformStamped, String> {
+        if self.parent.trim().is_empty() || self.child.trim().is_empty() {
+            return Err("expected non-empty `parent` and `child` frames".into());
+        }
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        if !finite(&self.xyz) {
+            return Err(format!("`xyz` {:?} is not finite", self.xyz));
+        }
+        let rotation = match (self.rpy, self.quaternion) {
+            (Some(_), Some(_)) => return Err("give `rpy` or `quaternion`, not both".into()),
+            (Some(r), None) if finite(&r) => UnitQuaternion::from_euler_angles(r[0], r[1], r[2]),
+            (None, Some(q)) if finite(&q) && q.iter().any(|x| *x != 0.0) => {
+                // As a recorded /tf_static quaternion is read (kept bit for bit when unit).
+                ros::unit_quaternion(q, "quaternion").map_err(|e| e.to_string())?
+            }
+            (None, None) => UnitQuaternion::identity(),
+            (r, q) => {
+                return Err(format!(
+                    "expected a finite `rpy` (rad) or a non-zero `quaternion` [x, y, z, w], found \
+                     rpy {r:?}, quaternion {q:?}"
+                ));
+            }
+        };
+        Ok(TransformStamped {
+            stamp: Nanos(0),
+            parent: FrameId::new(&self.parent),
+            child: FrameId::new(&self.child),
+            parent_from_child: Isometry3::from_parts(
+                Translation3::new(self.xyz[0], self.xyz[1], self.xyz[2]),
+                rotation,
+            ),
+        })
+    }
 }
 
 /// The largest topic-mapping file read (bytes); a larger one (or `/dev/zero`) is refused.
@@ -235,10 +295,18 @@ impl ReplayConfig {
             file: file.to_string(),
             problem: format!("TOML syntax error: {}", e.message().trim()),
         })?;
-        serde_path_to_error::deserialize(de).map_err(|e| ReplayError::Input {
-            file: file.to_string(),
-            problem: format!("`{}`: {}", e.path(), e.inner().message().trim()),
-        })
+        let cfg: ReplayConfig =
+            serde_path_to_error::deserialize(de).map_err(|e| ReplayError::Input {
+                file: file.to_string(),
+                problem: format!("`{}`: {}", e.path(), e.inner().message().trim()),
+            })?;
+        for (i, t) in cfg.static_transforms.iter().enumerate() {
+            t.transform().map_err(|problem| ReplayError::Input {
+                file: file.to_string(),
+                problem: format!("`static_transforms[{i}]`: {problem}"),
+            })?;
+        }
+        Ok(cfg)
     }
 
     /// The mapping of a vinebench recording: vinebench's own topic names, every camera.
@@ -1077,7 +1145,17 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
 
     // Static transforms.
     let body = bare_frame(cfg.body_frame.as_deref().unwrap_or(names::BASE_LINK));
-    let mut tf: Vec<TransformStamped> = Vec::new();
+    // The mapping file's transforms first: they take precedence over the recorded ones.
+    let mut tf: Vec<TransformStamped> = cfg
+        .static_transforms
+        .iter()
+        .filter_map(|t| t.transform().ok())
+        .map(|mut t| {
+            rename(&cfg.frames, &mut t.parent);
+            rename(&cfg.frames, &mut t.child);
+            t
+        })
+        .collect();
     for e in std::mem::take(&mut got.entries) {
         match e {
             Decoded::Tf(mut ts) => {
@@ -1094,8 +1172,9 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         return Err(ReplayError::Input {
             file: file_name,
             problem: format!(
-                "no static transforms on {tf_static_topic:?}: the estimators need \
-                 body_from_<sensor frame> for every sensor (its topics: {topic_list}){because}"
+                "no static transforms on {tf_static_topic:?} and no `[[static_transforms]]` in \
+                 a mapping file: the estimators need body_from_<sensor frame> for every sensor \
+                 (its topics: {topic_list}){because}"
             ),
         });
     }
@@ -1687,6 +1766,44 @@ mod tests {
         let imu = st.body_from("imu_link").unwrap();
         assert!((imu.translation.x - 0.3).abs() < 1e-12);
         assert!(static_transforms("nowhere", &tf).body_from.is_empty());
+    }
+
+    #[test]
+    fn static_transforms_of_the_mapping_file() {
+        let cfg = ReplayConfig::from_str(
+            "[[static_transforms]]\nparent = \"base_link\"\nchild = \"gps\"\nxyz = [0.1, 0, 1.2]\n\
+             rpy = [0, 0, 1.5707963267948966]\n\
+             [[static_transforms]]\nparent = \"base_link\"\nchild = \"imu\"\n\
+             quaternion = [0, 0, 0.7071067811865476, 0.7071067811865476]\n",
+            "m.toml",
+        )
+        .unwrap();
+        let t: Vec<TransformStamped> = cfg
+            .static_transforms
+            .iter()
+            .map(|e| e.transform().unwrap())
+            .collect();
+        // Both: 90° about z; the GNSS antenna 1.2 m up.
+        for x in &t {
+            assert!(
+                (x.parent_from_child.rotation.angle() - std::f64::consts::FRAC_PI_2).abs() < 1e-12
+            );
+            assert!((x.parent_from_child.rotation.axis().unwrap().z - 1.0).abs() < 1e-12);
+        }
+        assert_eq!(t[0].parent_from_child.translation.vector.z, 1.2);
+        for (bad, why) in [
+            ("rpy = [0, 0, 1]\nquaternion = [0, 0, 0, 1]", "not both"),
+            ("quaternion = [0, 0, 0, 0]", "non-zero"),
+            ("xyz = [0, 0, nan]", "not finite"),
+        ] {
+            let e = ReplayConfig::from_str(
+                &format!("[[static_transforms]]\nparent = \"a\"\nchild = \"b\"\n{bad}\n"),
+                "m.toml",
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("static_transforms[0]") && e.contains(why), "{e}");
+        }
     }
 
     #[test]

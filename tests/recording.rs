@@ -1024,6 +1024,68 @@ fn a_field_recording_replays_through_a_topic_mapping() {
     );
 }
 
+#[test]
+fn extrinsics_from_the_mapping_file_replay_as_the_recorded_tf_static() {
+    // A robot without /tf_static: its extrinsics in `[[static_transforms]]` (here the
+    // recorded ones written out exactly) give the same estimates, bit for bit.
+    let tmp = tempfile::tempdir().unwrap();
+    let live = tmp.path().join("live");
+    live_run(&live);
+    let mut tf: Vec<TransformStamped> = Vec::new();
+    reader::scan_file(&live.join("recording.mcap"), |c, m| {
+        if c.topic == "/tf_static" {
+            tf.extend(ros::decode_tf(m.data).unwrap());
+        }
+    })
+    .unwrap();
+    assert!(tf.len() > 3);
+    let topics = "name = \"field\"\n[topics]\nimu = \"/imu/data\"\ngnss_fix = \"/gnss/fix\"\n\
+                  tracking_odom = \"/tracking_camera/odom/sample\"\n";
+    let mut from_file = format!("{topics}tf_static = \"/robot_has_none\"\n");
+    for t in &tf {
+        let (p, q) = (
+            t.parent_from_child.translation.vector,
+            t.parent_from_child.rotation.coords,
+        );
+        from_file.push_str(&format!(
+            "[[static_transforms]]\nparent = \"/{}\"\nchild = \"{}\"\nxyz = [{:?}, {:?}, {:?}]\n\
+             quaternion = [{:?}, {:?}, {:?}, {:?}]\n",
+            t.parent.as_str(),
+            t.child.as_str(),
+            p.x,
+            p.y,
+            p.z,
+            q.x,
+            q.y,
+            q.z,
+            q.w
+        ));
+    }
+    let mut outs = Vec::new();
+    for (name, text) in [("recorded", topics.to_string()), ("file", from_file)] {
+        let map = tmp.path().join(format!("{name}.toml"));
+        std::fs::write(&map, text).unwrap();
+        let out = tmp.path().join(name);
+        replay(
+            &live.join("recording.mcap"),
+            &ReplayOptions {
+                config: Some(map),
+                out_dir: Some(out.clone()),
+                ..ReplayOptions::default()
+            },
+        )
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+        outs.push(out);
+    }
+    for f in ["estimate_eif.tum", "estimate_tracking_camera.tum"] {
+        assert_eq!(
+            std::fs::read(outs[0].join(f)).unwrap(),
+            std::fs::read(outs[1].join(f)).unwrap(),
+            "{f}"
+        );
+    }
+}
+
 #[cfg(unix)]
 #[test]
 fn ctrl_c_leaves_a_finalized_recording() {

@@ -182,7 +182,7 @@ fn read_quaternion(
     unit_quaternion(r.f64s::<4>(field)?, field)
 }
 
-fn unit_quaternion(
+pub(crate) fn unit_quaternion(
     [x, y, z, w]: [f64; 4],
     field: &'static str,
 ) -> Result<UnitQuaternion<f64>, CdrError> {
