@@ -119,9 +119,5 @@ where
 
 /// Whether `path` is an SQLite database (by its first bytes).
 pub fn is_sqlite(path: &Path) -> bool {
-    let mut magic = [0u8; 16];
-    std::fs::File::open(path)
-        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic))
-        .is_ok()
-        && &magic == b"SQLite format 3\0"
+    super::starts_with(path, b"SQLite format 3\0")
 }

@@ -294,11 +294,16 @@ pub fn storage(path: &Path) -> Result<Storage, RecordingError> {
 
 /// Whether `path` is a ROS 1 bag (by its first bytes).
 pub fn is_ros1_bag(path: &Path) -> bool {
-    let mut magic = [0u8; 9];
+    starts_with(path, b"#ROSBAG V")
+}
+
+/// Whether the file at `path` begins with the bytes `magic`.
+pub(crate) fn starts_with(path: &Path, magic: &[u8]) -> bool {
+    let mut head = vec![0u8; magic.len()];
     std::fs::File::open(path)
-        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic))
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
         .is_ok()
-        && &magic == b"#ROSBAG V"
+        && head == magic
 }
 
 /// Every message of a recording, whatever robots record: an MCAP file, a rosbag2 folder

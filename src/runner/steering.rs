@@ -191,9 +191,7 @@ impl SteeringLoop {
                 let Some(f) = v.last_frame() else {
                     return;
                 };
-                if self.seen.is_some_and(|s| f.stamp <= s) {
-                    return;
-                }
+                // (A frame already seen ends below, at the stamp check of every source.)
                 let lost = f.state == TrackingState::Lost
                     || (f.initialized && self.map != MapPlace::Unknown);
                 let (stamp, pose) = (f.stamp, f.world_from_body);

@@ -111,7 +111,7 @@ pub(crate) fn source_colour(i: usize) -> RGBColor {
 
 /// A series of `len` points read as a stream, thinned to at most
 /// [`MAX_POINTS_PER_SERIES`] points by stride (keeping the last).
-fn thin<T: Copy + PartialEq>(len: usize, points: impl Iterator<Item = T>) -> Vec<T> {
+pub(crate) fn thin<T: Copy + PartialEq>(len: usize, points: impl Iterator<Item = T>) -> Vec<T> {
     if len <= MAX_POINTS_PER_SERIES {
         return points.collect();
     }
@@ -134,7 +134,7 @@ fn thin<T: Copy + PartialEq>(len: usize, points: impl Iterator<Item = T>) -> Vec
 
 /// Thins a time series to at most [`MAX_POINTS_PER_SERIES`] points, keeping each bucket's
 /// smallest and largest `value` (in time order).
-fn thin_min_max<T: Copy>(points: Vec<T>, value: impl Fn(&T) -> f64) -> Vec<T> {
+pub(crate) fn thin_min_max<T: Copy>(points: Vec<T>, value: impl Fn(&T) -> f64) -> Vec<T> {
     if points.len() <= MAX_POINTS_PER_SERIES {
         return points;
     }

@@ -182,12 +182,13 @@ impl EvoArgs {
             FormatArg::Kitti => (Format::Kitti, Format::Kitti),
             FormatArg::Euroc => (Format::Euroc, Format::Tum),
             FormatArg::Bag | FormatArg::Bag2 => {
-                let [ref_topic, est_topics @ ..] = self.estimates.as_slice() else {
+                let Some((ref_topic, est_topics)) = self
+                    .estimates
+                    .split_first()
+                    .filter(|(_, est)| !est.is_empty())
+                else {
                     bail!("bag/bag2: give the recording, the reference topic and estimate topics");
                 };
-                if est_topics.is_empty() {
-                    bail!("bag/bag2: give the recording, the reference topic and estimate topics");
-                }
                 let topic = |p: &PathBuf| p.to_string_lossy().into_owned();
                 let reference = super::bag::read_topic(&self.reference, &topic(ref_topic))?;
                 let estimates = est_topics
@@ -278,17 +279,9 @@ fn write(path: &Path, bytes: &[u8]) -> Result<()> {
     crate::fsio::write_atomic(path, bytes).with_context(|| format!("writing {}", path.display()))
 }
 
-/// The label of a result in tables: the estimate file's name (evo_res uses the basename).
-fn label(r: &EvoResult) -> String {
-    Path::new(&r.info.est_name).file_name().map_or_else(
-        || r.info.est_name.clone(),
-        |f| f.to_string_lossy().into_owned(),
-    )
-}
-
 /// evo_res's table: one row per estimate, the statistics as columns.
 pub fn table(results: &[EvoResult]) -> String {
-    let labels: Vec<String> = results.iter().map(label).collect();
+    let labels: Vec<String> = results.iter().map(EvoResult::label).collect();
     let w = labels.iter().map(String::len).max().unwrap_or(0).max(8);
     let mut s = format!("{:w$}", "");
     for (n, _) in results[0].stats.named() {
@@ -329,7 +322,7 @@ pub fn csv_table(results: &[EvoResult]) -> String {
     }
     s.push('\n');
     for r in results {
-        s.push_str(&label(r).replace(',', "_"));
+        s.push_str(&r.label().replace(',', "_"));
         for (_, v) in r.stats.named() {
             s.push_str(&format!(",{v:?}"));
         }

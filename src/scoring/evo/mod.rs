@@ -304,6 +304,19 @@ pub struct EvoResult {
     pub plot: PlotData,
 }
 
+impl EvoResult {
+    /// The result's name in tables and plots: the estimate file's name (evo_res uses the
+    /// basename), or the topic.
+    pub fn label(&self) -> String {
+        std::path::Path::new(&self.info.est_name)
+            .file_name()
+            .map_or_else(
+                || self.info.est_name.clone(),
+                |f| f.to_string_lossy().into_owned(),
+            )
+    }
+}
+
 /// What the plot draws of a result.
 #[derive(Clone, Debug, Default)]
 pub struct PlotData {
@@ -364,7 +377,7 @@ fn prepare(reference: &Traj, estimate: &Traj, o: &Options) -> Result<Prepared, E
         return Err(EvoError::AlignBoth);
     }
     let mut notes = Vec::new();
-    let (mut r, mut e, stamps) = match (&reference.stamps, &estimate.stamps) {
+    let (r, mut e, stamps) = match (&reference.stamps, &estimate.stamps) {
         (Some(rs), Some(es)) => {
             let a = sync::associate(rs, es, o.t_max_diff, o.t_offset);
             if a.reference.is_empty() {
@@ -468,8 +481,6 @@ fn prepare(reference: &Traj, estimate: &Traj, o: &Options) -> Result<Prepared, E
         }
         alignment = Some(to_ref_origin);
     }
-    // (`r` stays as read; evo never moves the reference.)
-    r.shrink_to_fit();
     Ok(Prepared {
         reference: r,
         estimate: e,

@@ -6,7 +6,7 @@
 use super::EvoResult;
 use crate::scoring::plots::{
     PlotError, chart_builder, draw_err, draw_legend, equal_scale, padded_range, plotting_area_px,
-    source_colour,
+    source_colour, thin, thin_min_max,
 };
 use plotters::prelude::*;
 
@@ -40,13 +40,6 @@ impl PlotMode {
             PlotMode::Zy => (2, 1),
         }
     }
-}
-
-/// Most points drawn per series (longer ones by stride).
-const MAX_POINTS: usize = 4000;
-
-fn stride(n: usize) -> usize {
-    n.div_ceil(MAX_POINTS).max(1)
 }
 
 /// A perceptually ordered colour map (viridis, by five anchors) at `v` in [0, 1].
@@ -109,16 +102,10 @@ pub fn svg(results: &[EvoResult], mode: PlotMode) -> Result<String, PlotError> {
             let style = source_colour(i).stroke_width(2);
             let xs = x_of(r);
             let e = &r.np_arrays.error_array;
-            let k = stride(e.len());
-            let points: Vec<(f64, f64)> =
-                xs.iter().zip(e).step_by(k).map(|(&x, &y)| (x, y)).collect();
-            let name = std::path::Path::new(&r.info.est_name)
-                .file_name()
-                .map_or_else(
-                    || r.info.est_name.clone(),
-                    |f| f.to_string_lossy().into_owned(),
-                );
-            let legend = format!("{name} (rmse {:.4})", r.stats.rmse);
+            // Thinned as the run's error plot is: each bucket's extremes stay.
+            let points: Vec<(f64, f64)> = xs.iter().zip(e).map(|(&x, &y)| (x, y)).collect();
+            let points = thin_min_max(points, |p| p.1);
+            let legend = format!("{} (rmse {:.4})", r.label(), r.stats.rmse);
             chart
                 .draw_series(LineSeries::new(points, style))
                 .map_err(draw_err)?
@@ -150,11 +137,10 @@ pub fn svg(results: &[EvoResult], mode: PlotMode) -> Result<String, PlotError> {
             .draw()
             .map_err(draw_err)?;
         if let Some(r) = results.first() {
-            let k = stride(r.plot.reference.len());
             let grey = RGBColor(120, 120, 120);
             chart
                 .draw_series(DashedLineSeries::new(
-                    r.plot.reference.iter().step_by(k).map(pa),
+                    thin(r.plot.reference.len(), r.plot.reference.iter().map(pa)),
                     6,
                     4,
                     grey.stroke_width(2),
@@ -167,15 +153,14 @@ pub fn svg(results: &[EvoResult], mode: PlotMode) -> Result<String, PlotError> {
             // One estimate: coloured by its error from min (dark) to max (yellow).
             let (lo, hi) = (r.stats.min, r.stats.max);
             let span = if hi > lo { hi - lo } else { 1.0 };
-            let k = stride(r.plot.estimate.len());
-            let pts: Vec<_> = r
-                .plot
-                .estimate
-                .iter()
-                .zip(&r.np_arrays.error_array)
-                .step_by(k)
-                .map(|(p, e)| (pa(p), (e - lo) / span))
-                .collect();
+            let pts = thin(
+                r.plot.estimate.len(),
+                r.plot
+                    .estimate
+                    .iter()
+                    .zip(&r.np_arrays.error_array)
+                    .map(|(p, e)| (pa(p), (e - lo) / span)),
+            );
             chart
                 .draw_series(pts.windows(2).map(|w| {
                     PathElement::new(vec![w[0].0, w[1].0], colour_map(w[1].1).stroke_width(3))
@@ -188,20 +173,13 @@ pub fn svg(results: &[EvoResult], mode: PlotMode) -> Result<String, PlotError> {
         } else {
             for (i, r) in results.iter().enumerate() {
                 let style = source_colour(i).stroke_width(2);
-                let k = stride(r.plot.estimate.len());
-                let name = std::path::Path::new(&r.info.est_name)
-                    .file_name()
-                    .map_or_else(
-                        || r.info.est_name.clone(),
-                        |f| f.to_string_lossy().into_owned(),
-                    );
                 chart
                     .draw_series(LineSeries::new(
-                        r.plot.estimate.iter().step_by(k).map(pa),
+                        thin(r.plot.estimate.len(), r.plot.estimate.iter().map(pa)),
                         style,
                     ))
                     .map_err(draw_err)?
-                    .label(name)
+                    .label(r.label())
                     .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
             }
         }
