@@ -339,11 +339,9 @@ proptest! {
     #[test]
     fn rosbag2_sqlite_mutants(muts in mutations(4)) {
         let dir = tempfile::tempdir().unwrap();
-        let seed = dir.path().join("seed.db3");
-        db3_seed(&seed);
         let bag = dir.path().join("bag");
         std::fs::create_dir(&bag).unwrap();
-        std::fs::write(bag.join("bag_0.db3"), mutate(&std::fs::read(&seed).unwrap(), &muts)).unwrap();
+        std::fs::write(bag.join("bag_0.db3"), mutate(db3_seed(), &muts)).unwrap();
         no_panic(&format!("{muts:?}"), || {
             let _ = vinebench::recording::scan_any(&bag, |_, _| {});
             let _ = vinebench::scoring::evo::bag::read_topic(&bag, "/pose");
@@ -395,9 +393,22 @@ fn evo_seeds() -> Vec<(vinebench::scoring::evo::Format, Vec<u8>)> {
     ]
 }
 
-/// A rosbag2 sqlite3 file with 20 `geometry_msgs/msg/PoseStamped` on `/pose` (CDR).
-fn db3_seed(path: &Path) {
-    let db = rusqlite::Connection::open(path).unwrap();
+/// The bytes of a rosbag2 sqlite3 file with 20 `geometry_msgs/msg/PoseStamped` on `/pose`
+/// (CDR), written once (SQLite syncs every commit: one file per case would be most of the
+/// target's time).
+fn db3_seed() -> &'static [u8] {
+    static SEED: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+    SEED.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("seed.db3");
+        write_db3_seed(&path);
+        std::fs::read(&path).unwrap()
+    })
+}
+
+/// Writes [`db3_seed`]'s file at `path`.
+fn write_db3_seed(path: &Path) {
+    let mut db = rusqlite::Connection::open(path).unwrap();
     db.execute_batch(
         "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL, \
          serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL); \
@@ -406,6 +417,7 @@ fn db3_seed(path: &Path) {
          INSERT INTO topics VALUES (1, '/pose', 'geometry_msgs/msg/PoseStamped', 'cdr', '');",
     )
     .unwrap();
+    let tx = db.transaction().unwrap();
     for k in 0..20i64 {
         // CDR: encapsulation, stamp (sec, nanosec), frame_id "map", pose.
         let mut d = vec![0u8, 1, 0, 0];
@@ -416,12 +428,13 @@ fn db3_seed(path: &Path) {
         for v in [k as f64, 0.5, 0.0, 0.0, 0.0, 0.0, 1.0] {
             d.extend(v.to_le_bytes());
         }
-        db.execute(
+        tx.execute(
             "INSERT INTO messages(topic_id, timestamp, data) VALUES (1, ?1, ?2)",
             rusqlite::params![(100 + k) * 1_000_000_000, d],
         )
         .unwrap();
     }
+    tx.commit().unwrap();
 }
 
 /// A ROS 1 bag of `geometry_msgs/PoseStamped` on `/pose` and a `tf2_msgs/TFMessage` on
@@ -592,7 +605,7 @@ fn the_bag_seeds_read_whole() {
         assert_eq!(tf.poses.len(), 191, "{c}");
     }
     let dir = tempfile::tempdir().unwrap();
-    db3_seed(&dir.path().join("bag_0.db3"));
+    std::fs::write(dir.path().join("bag_0.db3"), db3_seed()).unwrap();
     let poses = vinebench::scoring::evo::bag::read_topic(dir.path(), "/pose").unwrap();
     assert_eq!(poses.poses.len(), 20);
     assert_eq!(poses.stamps.as_ref().unwrap()[3], 103.0);
