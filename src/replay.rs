@@ -189,6 +189,9 @@ pub struct ReplayConfig {
     /// `/tf_static`), as `static_transform_publisher` takes them.
     #[serde(default)]
     pub static_transforms: Vec<StaticTransformEntry>,
+    /// `[imu]`: how the recorded IMU reports its orientation.
+    #[serde(default)]
+    pub imu: ImuConventions,
     /// Geodetic origin of the ENU world frame (default: the first GNSS fix with a
     /// position).
     pub origin: Option<Geodetic>,
@@ -204,6 +207,81 @@ pub struct ReplayConfig {
     /// Expectations in the scenario language, on the estimate sources.
     #[serde(default)]
     pub expect: Vec<String>,
+}
+
+/// The axes an IMU reports in (`[imu] axes`).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ImuAxes {
+    /// REP-103/145: orientation `enu_from_flu` (x forward, y left, z up), rates and
+    /// accelerations in the FLU IMU frame.
+    #[default]
+    Enu,
+    /// Aerospace: orientation `ned_from_frd` (x forward, y right, z down), rates and
+    /// accelerations in FRD (how many IMUs report natively: VectorNav, PX4/ArduPilot logs).
+    Ned,
+}
+
+/// `[imu]` of a mapping file: the recorded IMU's conventions, converted to vinebench's
+/// (ENU, true north, REP-103 body) before the estimators see a message.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImuConventions {
+    /// Axes of the orientation, rates and accelerations (`"enu"` or `"ned"`).
+    #[serde(default)]
+    pub axes: ImuAxes,
+    /// Magnetic declination at the site, degrees east of true north, for an IMU whose
+    /// heading is referenced to magnetic north (a magnetometer AHRS).
+    #[serde(default)]
+    pub declination_deg: f64,
+    /// A known offset of the IMU's heading, degrees, counter-clockwise seen from above:
+    /// added to the recorded heading (after the declination).
+    #[serde(default)]
+    pub yaw_offset_deg: f64,
+    /// `"absolute"` or `"relative"` (an IMU whose heading is not to be trusted: only roll
+    /// and pitch are used, the heading comes from the GNSS course): sets
+    /// `[estimators.eif] orientation_yaw`.
+    pub yaw: Option<vinebench_onboard::estimator::OrientationYaw>,
+}
+
+impl ImuConventions {
+    /// True when messages need converting.
+    fn converts(&self) -> bool {
+        self.axes != ImuAxes::Enu || self.declination_deg != 0.0 || self.yaw_offset_deg != 0.0
+    }
+
+    /// Rewrites an IMU message into ENU, true north, REP-103 body axes.
+    pub fn convert(&self, m: &mut vinebench_msgs::ImuMsg) {
+        use nalgebra::{Matrix3, Vector3};
+        let heading = UnitQuaternion::from_axis_angle(
+            &Vector3::z_axis(),
+            (self.yaw_offset_deg - self.declination_deg).to_radians(),
+        );
+        let (world, body) = match self.axes {
+            ImuAxes::Enu => (heading, UnitQuaternion::identity()),
+            ImuAxes::Ned => {
+                // enu_from_ned swaps x and y and flips z; frd_from_flu flips y and z.
+                let enu_from_ned = UnitQuaternion::from_matrix(&Matrix3::new(
+                    0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0,
+                ));
+                let frd_from_flu =
+                    UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
+                (heading * enu_from_ned, frd_from_flu)
+            }
+        };
+        m.orientation = m.orientation.map(|q| world * q * body);
+        let (w, b) = (
+            world.to_rotation_matrix().into_inner(),
+            body.to_rotation_matrix().into_inner(),
+        );
+        // Orientation covariance is about the world axes; rates and accelerations are in
+        // the body frame (flu_from_frd = frd_from_fluᵀ).
+        m.orientation_covariance = w * m.orientation_covariance * w.transpose();
+        m.angular_velocity = b.transpose() * m.angular_velocity;
+        m.linear_acceleration = b.transpose() * m.linear_acceleration;
+        m.angular_velocity_covariance = b.transpose() * m.angular_velocity_covariance * b;
+        m.linear_acceleration_covariance = b.transpose() * m.linear_acceleration_covariance * b;
+    }
 }
 
 /// One `[[static_transforms]]` entry: `parent_from_child` as translation and either
@@ -300,6 +378,17 @@ impl ReplayConfig {
                 file: file.to_string(),
                 problem: format!("`{}`: {}", e.path(), e.inner().message().trim()),
             })?;
+        for (key, v) in [
+            ("imu.declination_deg", cfg.imu.declination_deg),
+            ("imu.yaw_offset_deg", cfg.imu.yaw_offset_deg),
+        ] {
+            if !(v.is_finite() && v.abs() <= 360.0) {
+                return Err(ReplayError::Input {
+                    file: file.to_string(),
+                    problem: format!("`{key}`: expected degrees in [-360, 360], found {v}"),
+                });
+            }
+        }
         for (i, t) in cfg.static_transforms.iter().enumerate() {
             t.transform().map_err(|problem| ReplayError::Input {
                 file: file.to_string(),
@@ -855,8 +944,34 @@ fn scenario_of_config(
         problem: format!("origin: {e}"),
     })?;
     t.insert("origin".into(), origin_value);
-    if let Some(e) = &cfg.estimators {
-        t.insert("estimators".into(), toml::Value::Table(e.clone()));
+    let mut estimators = cfg.estimators.clone().unwrap_or_default();
+    if let Some(yaw) = cfg.imu.yaw {
+        let value = toml::Value::try_from(yaw).map_err(|e| ReplayError::Input {
+            file: file.to_string(),
+            problem: format!("imu.yaw: {e}"),
+        })?;
+        let eif = estimators
+            .entry("eif")
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        if let toml::Value::Table(eif) = eif {
+            match eif.get("orientation_yaw") {
+                Some(v) if *v != value => {
+                    return Err(ReplayError::Input {
+                        file: file.to_string(),
+                        problem: format!(
+                            "`imu.yaw` = {value} and `estimators.eif.orientation_yaw` = {v} \
+                             disagree: give one of them"
+                        ),
+                    });
+                }
+                _ => {
+                    eif.insert("orientation_yaw".into(), value);
+                }
+            }
+        }
+    }
+    if !estimators.is_empty() {
+        t.insert("estimators".into(), toml::Value::Table(estimators));
     }
     if let Some(s) = &cfg.scoring {
         t.insert("scoring".into(), toml::Value::Table(s.clone()));
@@ -1314,6 +1429,11 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     crate::recording::scan_any(file, |ch, m| {
         if let Some(mut msg) = collect(Scan::Sensors, &roles, &mut camera_topics, &mut got, ch, m) {
             rename_message(&cfg.frames, &mut msg);
+            if let Message::Imu(imu) = &mut msg
+                && cfg.imu.converts()
+            {
+                cfg.imu.convert(imu);
+            }
             order.push(m.publish_time, msg, &mut feed);
         }
     })?;

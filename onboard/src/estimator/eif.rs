@@ -70,7 +70,7 @@ use super::ins::{
     STATE_DIM, Vec15,
 };
 use super::measurement::{self, Linearized};
-use super::params::{EifParams, ImuSampleModel};
+use super::params::{EifParams, ImuSampleModel, OrientationYaw};
 use super::so3::skew;
 use super::{Estimator, EstimatorError, EstimatorStats};
 use nalgebra::{
@@ -130,6 +130,12 @@ struct Config {
     gnss_tau: f64,
     orientation_tau: f64,
     imu_interval_mean: bool,
+    /// `orientation_yaw = "relative"`: AHRS roll/pitch only, heading from the course.
+    relative_yaw: bool,
+    course_min_speed: f64,
+    course_min_baseline: f64,
+    /// rad.
+    course_floor: f64,
 }
 
 impl Config {
@@ -196,6 +202,11 @@ impl Config {
                 p.orientation_correlation_time_s,
             )?,
             imu_interval_mean: p.imu_sample_model == ImuSampleModel::IntervalMean,
+            relative_yaw: p.orientation_yaw == OrientationYaw::Relative,
+            course_min_speed: positive("course_min_speed_mps", p.course_min_speed_mps)?,
+            course_min_baseline: positive("course_min_baseline_m", p.course_min_baseline_m)?,
+            course_floor: positive("course_sigma_floor_deg", p.course_sigma_floor_deg)?
+                .to_radians(),
         })
     }
 }
@@ -267,6 +278,13 @@ enum Pending {
         /// Error covariance about the world axes, rad².
         cov_world: Matrix3<f64>,
     },
+    /// A heading from the course over ground (`yaw = "relative"`).
+    Course {
+        /// Heading of the body's forward axis, rad counter-clockwise from east.
+        z: f64,
+        /// Its variance, rad².
+        var: f64,
+    },
     Tracking {
         /// The moving frame of the odometry.
         child: FrameId,
@@ -312,7 +330,93 @@ struct PreInit {
     imu: Option<(ImuSample, UnitQuaternion<f64>, Matrix3<f64>)>,
     fix: Option<GnssFixMsg>,
     vel: Option<GnssVelocityMsg>,
+    /// The newest course over ground: stamp, heading (rad), variance (rad²).
+    course: Option<(Nanos, f64, f64)>,
     last_stamp: Option<Nanos>,
+}
+
+/// Longest time between the two fixes of a course chord.
+const MAX_CHORD_TIME: Nanos = Nanos::from_secs(10);
+
+/// The course over ground from the GNSS track (`orientation_yaw = "relative"`): from
+/// GNSS velocity, or from the chord between two fixes, corrected to the heading at the
+/// chord's end with the yaw the gyro turned through meanwhile (half of it: the chord of
+/// a steady turn points along the mean heading).
+#[derive(Clone, Debug, Default)]
+struct CourseTracker {
+    /// World yaw the gyro turned through since the start, rad (the world z component of
+    /// the rate: independent of the heading, so the AHRS's tilt is enough before the
+    /// filter starts).
+    yaw_turned: f64,
+    last_imu: Option<Nanos>,
+    /// Where the next chord starts: stamp, antenna ENU x/y, horizontal variance per axis
+    /// (m²), `yaw_turned` then.
+    anchor: Option<(Nanos, [f64; 2], f64, f64)>,
+    /// A GNSS velocity message has been seen: chords are not used.
+    velocity_seen: bool,
+}
+
+impl CourseTracker {
+    fn on_imu(&mut self, t: Nanos, w: &Vector3<f64>, world_from_imu: &UnitQuaternion<f64>) {
+        if let Some(l) = self.last_imu
+            && t > l
+            && t - l <= MAX_IMU_GAP
+        {
+            self.yaw_turned += (world_from_imu * w).z * (t - l).as_secs_f64();
+        }
+        self.last_imu = Some(t);
+    }
+
+    /// A course from a valid fix's chord: heading (rad) and variance (rad²).
+    fn chord(
+        &mut self,
+        cfg: &Config,
+        t: Nanos,
+        p: &Vector3<f64>,
+        cov: &Matrix3<f64>,
+    ) -> Option<(f64, f64)> {
+        if self.velocity_seen {
+            return None;
+        }
+        let var = (0.5 * (cov[(0, 0)] + cov[(1, 1)])).max(POSITION_FLOOR_M * POSITION_FLOOR_M);
+        let here = ([p.x, p.y], var, self.yaw_turned);
+        let Some((ta, a, var_a, yaw_a)) = self.anchor else {
+            self.anchor = Some((t, here.0, here.1, here.2));
+            return None;
+        };
+        if t <= ta || t - ta > MAX_CHORD_TIME || !var.is_finite() {
+            self.anchor = Some((t, here.0, here.1, here.2));
+            return None;
+        }
+        let (dx, dy) = (p.x - a[0], p.y - a[1]);
+        let d = dx.hypot(dy);
+        let chord_var = (var + var_a) / (d * d);
+        if d < cfg.course_min_baseline || chord_var > 1.0 / 36.0 {
+            return None;
+        }
+        self.anchor = Some((t, here.0, here.1, here.2));
+        let turned = self.yaw_turned - yaw_a;
+        Some((
+            dy.atan2(dx) + 0.5 * turned,
+            chord_var + cfg.course_floor * cfg.course_floor + (0.25 * turned).powi(2),
+        ))
+    }
+
+    /// A course from a GNSS velocity: heading (rad) and variance (rad²).
+    fn velocity(&mut self, cfg: &Config, m: &GnssVelocityMsg) -> Option<(f64, f64)> {
+        self.velocity_seen = true;
+        let v = m.velocity_in_world;
+        let speed = v.x.hypot(v.y);
+        let var_v = 0.5 * (m.covariance[(0, 0)] + m.covariance[(1, 1)]);
+        if speed.is_nan() || speed < cfg.course_min_speed || !var_v.is_finite() || var_v < 0.0 {
+            return None;
+        }
+        Some((
+            v.y.atan2(v.x),
+            (var_v + VELOCITY_FLOOR_MPS * VELOCITY_FLOOR_MPS) / (speed * speed)
+                + cfg.course_floor * cfg.course_floor,
+        ))
+    }
 }
 
 /// The Extended Information Filter (source name `eif`).
@@ -327,6 +431,7 @@ pub struct Eif {
     /// `imu_from_<frame>` for frames seen so far.
     frame_cache: Vec<(FrameId, Isometry3<f64>)>,
     pre: PreInit,
+    course: CourseTracker,
     filter: Option<Filter>,
     pending: VecDeque<(Nanos, Pending)>,
     group: Vec<Pending>,
@@ -379,13 +484,14 @@ fn symmetrize(m: &mut Mat15) {
 /// Per-kind counts of one correction group.
 #[derive(Default)]
 struct GroupCounts {
-    kinds: [u64; 4],
+    kinds: [u64; 5],
 }
-const KIND_NAMES: [&str; 4] = [
+const KIND_NAMES: [&str; 5] = [
     "gnss_fix",
     "gnss_velocity",
     "imu_orientation",
     "tracking_odom",
+    "gnss_course",
 ];
 
 impl Eif {
@@ -412,6 +518,7 @@ impl Eif {
             imu_from_body: Isometry3::identity(),
             frame_cache: Vec::new(),
             pre: PreInit::default(),
+            course: CourseTracker::default(),
             filter: None,
             pending: VecDeque::new(),
             group: Vec::new(),
@@ -496,6 +603,9 @@ impl Eif {
                     self.pre.imu = m
                         .orientation
                         .map(|q| (ImuSample::from_msg(m), q, m.orientation_covariance));
+                    if let Some(q) = m.orientation {
+                        self.course.on_imu(m.stamp, &m.angular_velocity, &q);
+                    }
                 }
                 self.stats.count_rejected("before_init");
             }
@@ -503,11 +613,25 @@ impl Eif {
                 if m.status == FixStatus::NoFix {
                     self.stats.count_rejected("gnss_no_fix");
                 } else {
+                    if self.cfg.relative_yaw {
+                        let p = self.enu.enu_from_geodetic(&m.position);
+                        if let Some((z, var)) =
+                            self.course
+                                .chord(&self.cfg, m.stamp, &p, &m.position_covariance)
+                        {
+                            self.pre.course = Some((m.stamp, z, var));
+                        }
+                    }
                     self.pre.fix = Some(m.clone());
                     self.stats.count_rejected("before_init");
                 }
             }
             Message::GnssVelocity(m) => {
+                if self.cfg.relative_yaw
+                    && let Some((z, var)) = self.course.velocity(&self.cfg, m)
+                {
+                    self.pre.course = Some((m.stamp, z, var));
+                }
                 self.pre.vel = Some(m.clone());
                 self.stats.count_rejected("before_init");
             }
@@ -528,6 +652,42 @@ impl Eif {
             return;
         };
         let r_ia = imu_from_antenna.translation.vector;
+        let (mut q, mut q_cov) = (q, q_cov);
+        let mut heading_note = String::new();
+        if self.cfg.relative_yaw {
+            // The heading from the course over ground of the same epoch; roll and pitch
+            // from the AHRS (a rotation about world z changes neither).
+            let Some((tc, z, var)) = self.pre.course else {
+                return;
+            };
+            if (tc - fix.stamp).as_nanos().abs() > MAX_INIT_LAG.as_nanos() || tc > imu.t {
+                return;
+            }
+            let forward = self.imu_from_body.rotation * Vector3::x();
+            let psi = measurement::heading_model(
+                &NavState {
+                    p: Vector3::zeros(),
+                    v: Vector3::zeros(),
+                    q,
+                    p_clone: Vector3::zeros(),
+                    q_clone: q,
+                },
+                &forward,
+            );
+            q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), z - psi) * q;
+            let mut c = q_cov;
+            for k in 0..3 {
+                c[(2, k)] = 0.0;
+                c[(k, 2)] = 0.0;
+            }
+            c[(2, 2)] = var;
+            q_cov = c;
+            heading_note = format!(
+                ", heading {:.1}° from the course over ground (±{:.1}°)",
+                z.to_degrees(),
+                var.sqrt().to_degrees()
+            );
+        }
         let rot = q.to_rotation_matrix().into_inner();
         let p_ant = self.enu.enu_from_geodetic(&fix.position);
         let mut v = Vector3::zeros();
@@ -597,7 +757,7 @@ impl Eif {
             output_due: true,
         });
         self.stats.notes.push(format!(
-            "initialized at {} from a {} fix at {} (gravity {gravity:.6} m/s²)",
+            "initialized at {} from a {} fix at {} (gravity {gravity:.6} m/s²){heading_note}",
             imu.t,
             fix.status.name(),
             fix.stamp
@@ -635,6 +795,7 @@ impl Eif {
     fn apply_group(&mut self, group: &[Pending]) {
         let cfg = &self.cfg;
         let stats = &mut self.stats;
+        let imu_from_body_rot = self.imu_from_body.rotation;
         let Some(f) = self.filter.as_mut() else {
             return;
         };
@@ -705,6 +866,20 @@ impl Eif {
                         reject("numerical_skip");
                     }
                 }
+                Pending::Orientation { q, cov_world } if cfg.relative_yaw => {
+                    // Roll and pitch: the world x/y block of the AHRS covariance.
+                    let lin = measurement::tilt(&nav, q);
+                    let r = (cov_world.fixed_view::<2, 2>(0, 0).into_owned()
+                        + nalgebra::Matrix2::identity()
+                            * (ROTATION_FLOOR_RAD * ROTATION_FLOOR_RAD))
+                        * correlation_inflation(cfg.orientation_tau, f.t - f.last_orientation_used);
+                    if add_information(&mut lambda_add, &mut eta, &lin, &r).is_some() {
+                        counts.kinds[2] += 1;
+                        n_info += 1;
+                    } else {
+                        reject("numerical_skip");
+                    }
+                }
                 Pending::Orientation { q, cov_world } => {
                     let lin = measurement::orientation(&nav, q);
                     let r = (rot.transpose() * cov_world * rot
@@ -712,6 +887,24 @@ impl Eif {
                         * correlation_inflation(cfg.orientation_tau, f.t - f.last_orientation_used);
                     if add_information(&mut lambda_add, &mut eta, &lin, &r).is_some() {
                         counts.kinds[2] += 1;
+                        n_info += 1;
+                    } else {
+                        reject("numerical_skip");
+                    }
+                }
+                Pending::Course { z, var } => {
+                    let forward = imu_from_body_rot * Vector3::x();
+                    // Driving backwards: the track points the other way.
+                    let mut z = *z;
+                    if measurement::wrap_pi(z - measurement::heading_model(&nav, &forward)).abs()
+                        > std::f64::consts::FRAC_PI_2
+                    {
+                        z += std::f64::consts::PI;
+                    }
+                    let lin = measurement::course(&nav, &forward, z);
+                    let r = SMatrix::<f64, 1, 1>::new(*var);
+                    if add_information(&mut lambda_add, &mut eta, &lin, &r).is_some() {
+                        counts.kinds[4] += 1;
                         n_info += 1;
                     } else {
                         reject("numerical_skip");
@@ -875,6 +1068,9 @@ impl Eif {
             return;
         };
         propagate_to(f, sample.t, &interval, &noise);
+        if self.cfg.relative_yaw {
+            self.course.on_imu(sample.t, &sample.w, &f.core.nav.q);
+        }
         let half_step = Nanos((sample.t - f.last_imu.t).as_nanos() / 2);
         f.last_imu = sample;
         if sample.t + half_step >= f.next_output {
@@ -911,6 +1107,16 @@ impl Eif {
             self.stats.count_rejected("gnss_no_fix");
             return;
         }
+        if self.cfg.relative_yaw {
+            let p = self.enu.enu_from_geodetic(&m.position);
+            if let Some((z, var)) =
+                self.course
+                    .chord(&self.cfg, m.stamp, &p, &m.position_covariance)
+            {
+                self.pending
+                    .push_back((m.stamp, Pending::Course { z, var }));
+            }
+        }
         if !self.cfg.use_gnss_position {
             return;
         }
@@ -928,6 +1134,12 @@ impl Eif {
     }
 
     fn on_velocity(&mut self, m: &GnssVelocityMsg) {
+        if self.cfg.relative_yaw
+            && let Some((z, var)) = self.course.velocity(&self.cfg, m)
+        {
+            self.pending
+                .push_back((m.stamp, Pending::Course { z, var }));
+        }
         if !self.cfg.use_gnss_velocity {
             return;
         }
@@ -1056,9 +1268,16 @@ impl Estimator for Eif {
             self.stats.count_rejected("after_last_imu");
         }
         if self.filter.is_none() {
-            self.stats
-                .notes
-                .push("never initialized: no valid GNSS fix with an AHRS orientation".into());
+            self.stats.notes.push(if self.cfg.relative_yaw {
+                format!(
+                    "never initialized: no valid GNSS fix with an AHRS orientation and a course \
+                     over ground (GNSS speed >= {} m/s or fixes >= {} m apart: \
+                     orientation_yaw = \"relative\" needs the robot to drive)",
+                    self.cfg.course_min_speed, self.cfg.course_min_baseline
+                )
+            } else {
+                "never initialized: no valid GNSS fix with an AHRS orientation".into()
+            });
         }
     }
 
@@ -1216,6 +1435,76 @@ mod tests {
             "σ must recover: {s_after} vs {s_before}"
         );
         assert_eq!(eif.stats().rejected["gnss_no_fix"], 600);
+    }
+
+    /// `orientation_yaw = "relative"`: an AHRS whose yaw is off by any angle (magnetic,
+    /// unreferenced) changes nothing. The filter starts with the heading of the course over
+    /// ground, from GNSS velocity or, without it, from the chord between fixes, keeps it
+    /// right from the course, and is about as good as with a true-north AHRS; the same
+    /// input with `"absolute"` is off by the offset.
+    #[test]
+    fn relative_yaw_starts_and_stays_right_with_any_heading_offset() {
+        let motion = Circle {
+            center: Vector3::new(5.0, -3.0, 0.2),
+            radius: 10.0,
+            speed: 1.0,
+        };
+        let setup = Setup::new(60.0, Noise::mti300_rtk(), 21);
+        let msgs = synthetic::in_stamp_order(synthetic::generate(&motion, &setup));
+        let (_, reference_rms, reference_rot, _, _) = summary(
+            &errors(run(&params(), &msgs).trajectory(), &motion),
+            5.0,
+            61.0,
+        );
+        let relative = EifParams {
+            orientation_yaw: OrientationYaw::Relative,
+            ..params()
+        };
+        for offset_deg in [0.0f64, 37.0, 120.0, -179.0] {
+            let off = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), offset_deg.to_radians());
+            let shifted: Vec<Message> = msgs
+                .iter()
+                .map(|m| match m {
+                    Message::Imu(i) => {
+                        let mut i = i.clone();
+                        i.orientation = i.orientation.map(|q| off * q);
+                        Message::Imu(i)
+                    }
+                    m => m.clone(),
+                })
+                .collect();
+            for with_velocity in [true, false] {
+                let input: Vec<Message> = shifted
+                    .iter()
+                    .filter(|m| with_velocity || !matches!(m, Message::GnssVelocity(_)))
+                    .cloned()
+                    .collect();
+                let eif = run(&relative, &input);
+                let first = eif.trajectory().samples[0].stamp - synthetic::T0;
+                assert!(first < Nanos::from_secs(2), "started at {first}");
+                let (max_p, rms_p, max_r, _, _) =
+                    summary(&errors(eif.trajectory(), &motion), 5.0, 61.0);
+                eprintln!(
+                    "offset {offset_deg}°, velocity {with_velocity}: started {first}, position \
+                     rms {rms_p:.4} m (max {max_p:.4}), rotation max {:.3}° (true-north AHRS: \
+                     {reference_rms:.4} m, {:.3}°)",
+                    max_r.to_degrees(),
+                    reference_rot.to_degrees()
+                );
+                assert!(max_r < 1.5f64.to_radians(), "{}°", max_r.to_degrees());
+                assert!(
+                    rms_p < 2.0 * reference_rms + 0.005,
+                    "{rms_p} vs {reference_rms}"
+                );
+                assert!(eif.stats().used["gnss_course"] > 100);
+                if offset_deg.abs() > 90.0 {
+                    let absolute = run(&params(), &input);
+                    let (_, _, max_r, _, _) =
+                        summary(&errors(absolute.trajectory(), &motion), 5.0, 61.0);
+                    assert!(max_r > 1.0, "absolute yaw: {}°", max_r.to_degrees());
+                }
+            }
+        }
     }
 
     /// GNSS errors that wander with a 10 s correlation time: a filter that takes each fix

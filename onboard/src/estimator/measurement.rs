@@ -78,6 +78,59 @@ pub fn orientation(x: &NavState, z: &UnitQuaternion<f64>) -> Linearized<3> {
     }
 }
 
+/// AHRS roll and pitch only (`yaw = "relative"`): the measured `world_from_imu` `z` is used
+/// through the up direction it gives in the IMU frame, `zᵀ e_z`, which does not depend on
+/// its yaw (so an arbitrarily offset heading reference changes nothing). With
+/// `u = R̂ zᵀ e_z` the residual is `[u_y, −u_x]`: the world-x and world-y components of the
+/// rotation from the estimate to the measurement (rad, to first order), and
+/// `H = [0, 0, rows 0–1 of R̂, 0]`.
+pub fn tilt(x: &NavState, z: &UnitQuaternion<f64>) -> Linearized<2> {
+    let r = x.q.to_rotation_matrix().into_inner();
+    let u = x.q * (z.inverse() * Vector3::z());
+    let mut h = SMatrix::<f64, 2, STATE_DIM>::zeros();
+    h.fixed_view_mut::<2, 3>(0, IDX_TH)
+        .copy_from(&r.fixed_rows::<2>(0));
+    Linearized {
+        residual: SVector::<f64, 2>::new(u.y, -u.x),
+        h,
+    }
+}
+
+/// The heading of the body's forward axis in the world (rad, counter-clockwise from east):
+/// the yaw of `R e_f`, `e_f` the body x axis in the IMU frame.
+pub fn heading_model(x: &NavState, forward_in_imu: &Vector3<f64>) -> f64 {
+    let f = x.q * forward_in_imu;
+    f.y.atan2(f.x)
+}
+
+/// Heading from the course over ground (`yaw = "relative"`): `z` the direction of the
+/// horizontal GNSS velocity (rad, counter-clockwise from east), taken as the heading of the
+/// body's forward axis `e_f` (IMU frame). Residual `wrap(z − ψ̂)`; with `f = R̂ e_f`,
+/// `H_θ = (−f_y, f_x, 0)/(f_x² + f_y²) · (−R̂ [e_f]×)`.
+pub fn course(x: &NavState, forward_in_imu: &Vector3<f64>, z: f64) -> Linearized<1> {
+    let r = x.q.to_rotation_matrix().into_inner();
+    let f = r * forward_in_imu;
+    let n = (f.x * f.x + f.y * f.y).max(1e-12);
+    let dpsi_df = nalgebra::RowVector3::new(-f.y / n, f.x / n, 0.0);
+    let mut h = SMatrix::<f64, 1, STATE_DIM>::zeros();
+    h.fixed_view_mut::<1, 3>(0, IDX_TH)
+        .copy_from(&(dpsi_df * (-(r * skew(forward_in_imu)))));
+    Linearized {
+        residual: SVector::<f64, 1>::new(wrap_pi(z - heading_model(x, forward_in_imu))),
+        h,
+    }
+}
+
+/// `a` wrapped into `(−π, π]`.
+pub fn wrap_pi(a: f64) -> f64 {
+    let w = a.rem_euclid(std::f64::consts::TAU);
+    if w > std::f64::consts::PI {
+        w - std::f64::consts::TAU
+    } else {
+        w
+    }
+}
+
 /// Eq. (2) predicted, relative: the motion of the IMU frame since the clone,
 /// `imu_c_from_imu = (R_cᵀ(p − p_c), R_cᵀ R)`.
 pub fn relative_pose_model(x: &NavState) -> (Vector3<f64>, UnitQuaternion<f64>) {
@@ -214,6 +267,55 @@ mod tests {
             let lin = orientation(&x, &(x.q * exp(&e)));
             assert!((lin.residual - e).norm() < 1e-12);
         }
+    }
+
+    #[test]
+    fn tilt_ignores_yaw_and_its_jacobian_is_numeric_derivative() {
+        let mut rng = ChaCha8Rng::seed_from_u64(15);
+        for _ in 0..50 {
+            let x = random_state(&mut rng);
+            // Any heading offset of the reference leaves the residual at zero.
+            let yaw =
+                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), rng.random_range(-3.1..3.1));
+            let lin = tilt(&x, &(yaw * x.q));
+            assert!(lin.residual.norm() < 1e-12);
+            let num = numeric(&x, |y| tilt(&x, &y.q).residual);
+            check("tilt", &lin.h, &num);
+            // A known small world-axis tilt error is the residual (first order).
+            let e = Vector3::new(
+                rng.random_range(-1e-4..1e-4),
+                rng.random_range(-1e-4..1e-4),
+                0.0,
+            );
+            let lin = tilt(&x, &(exp(&e) * x.q));
+            assert!(
+                (lin.residual - e.xy()).norm() < 1e-7,
+                "{} vs {}",
+                lin.residual,
+                e.xy()
+            );
+        }
+    }
+
+    #[test]
+    fn course_jacobian_is_numeric_derivative_and_wraps() {
+        let mut rng = ChaCha8Rng::seed_from_u64(16);
+        for _ in 0..50 {
+            let x = random_state(&mut rng);
+            let ef = exp(&v3(&mut rng, 0.3)) * Vector3::x();
+            let psi = heading_model(&x, &ef);
+            let lin = course(&x, &ef, psi);
+            assert!(lin.residual[0].abs() < 1e-12);
+            let num = numeric(&x, |y| {
+                SVector::<f64, 1>::new(wrap_pi(heading_model(y, &ef) - psi))
+            });
+            check("course", &lin.h, &num);
+            // Across ±π the residual is the short way round.
+            let lin = course(&x, &ef, psi + std::f64::consts::TAU + 0.01);
+            assert!((lin.residual[0] - 0.01).abs() < 1e-9);
+        }
+        assert_eq!(wrap_pi(std::f64::consts::PI), std::f64::consts::PI);
+        assert!((wrap_pi(-std::f64::consts::PI) - std::f64::consts::PI).abs() < 1e-15);
     }
 
     #[test]

@@ -22,7 +22,7 @@ pub mod so3;
 mod synthetic;
 
 pub use eif::Eif;
-pub use params::{EifParams, EstimatorKind, EstimatorsParams, ImuSampleModel};
+pub use params::{EifParams, EstimatorKind, EstimatorsParams, ImuSampleModel, OrientationYaw};
 pub use set::{EstimationOutput, EstimatorOutput, EstimatorSet, SensorFrames, StageStats};
 pub use single_source::{GnssOnly, TrackingCameraOnly};
 

@@ -37,6 +37,16 @@ pub enum ImuSampleModel {
     Point,
 }
 
+/// What the AHRS orientation's yaw is trusted for (`orientation_yaw`).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OrientationYaw {
+    /// Roll, pitch and yaw (a true-north ENU heading).
+    Absolute,
+    /// Roll and pitch only; the heading comes from the GNSS course over ground.
+    Relative,
+}
+
 /// `[estimators]`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -91,6 +101,14 @@ pub struct EifParams {
     pub initial_velocity_sigma_mps: f64,
     /// How IMU samples are integrated between messages.
     pub imu_sample_model: ImuSampleModel,
+    /// What the AHRS yaw is trusted for.
+    pub orientation_yaw: OrientationYaw,
+    /// Slowest horizontal GNSS speed used as a course over ground, m/s.
+    pub course_min_speed_mps: f64,
+    /// Shortest fix-to-fix chord used as a course over ground, m.
+    pub course_min_baseline_m: f64,
+    /// Noise floor of a course-over-ground heading, degrees.
+    pub course_sigma_floor_deg: f64,
 }
 
 impl Default for EstimatorsParams {

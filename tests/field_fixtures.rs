@@ -1,0 +1,212 @@
+//! Field-recording fixtures (issue #30): one simulated drive, rewritten the way real robots
+//! record it, replays from the documented mapping, and the EIF's error against the
+//! simulation's truth stays close to what the vinebench recording itself gives.
+//!
+//! The fixtures here change the IMU's conventions: NED/FRD axes with a magnetic heading
+//! (converted by `[imu] axes` and `declination_deg`), and a heading reference offset by an
+//! unknown angle (`[imu] yaw = "relative"`). The ROS 1 bag and rosbag2 `.db3` forms of
+//! the same drive are made by `rosbags-convert` in `scripts/ros1_bag_check.sh`.
+
+// Test helpers panic on failure by design.
+#![allow(clippy::unwrap_used)]
+
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+use std::borrow::Cow;
+use std::path::Path;
+use vinebench::recording::ros;
+use vinebench::replay::{ReplayOptions, ReplayOutcome, replay};
+use vinebench::runner::{RunOptions, run};
+use vinebench::scenario::LoadedScenario;
+
+/// 40 s along the row loop: starts at rest, drives off, turns into the next row.
+const DRIVE: &str =
+    "name = \"field-drive\"\nmax_duration_s = 40.0\n[motion]\nmodel = \"kinematic\"\n";
+
+/// The topics of a vinebench recording, mapped as a user maps a robot's (ground truth
+/// kept for scoring, so the world's origin is the scenario's, `scenarios/defaults.toml`;
+/// no tracking camera: a GNSS + IMU robot).
+const TOPICS: &str = "[topics]\nimu = \"/imu/data\"\ngnss_fix = \"/gnss/fix\"\n\
+                      gnss_velocity = \"/gnss/fix_velocity\"\n\
+                      ground_truth = \"/ground_truth/odom\"\n\
+                      [estimators]\nrun = [\"eif\"]\n\
+                      [origin]\nlat_deg = 40.4545\nlon_deg = 17.9085\nalt_m = 55.0\n";
+
+fn drive(dir: &Path) {
+    let sc = LoadedScenario::from_str(DRIVE, "field-drive.toml").unwrap();
+    run(
+        &sc,
+        &RunOptions {
+            out_dir: Some(dir.to_path_buf()),
+            progress: false,
+            ..RunOptions::default()
+        },
+    )
+    .unwrap();
+}
+
+/// Rewrites the MCAP `src` into `dst`, passing each message's bytes through
+/// `f(topic, bytes)` (`None` drops the message); channels and times are kept.
+fn rewrite(src: &Path, dst: &Path, mut f: impl FnMut(&str, &[u8]) -> Option<Vec<u8>>) {
+    let bytes = std::fs::read(src).unwrap();
+    let file = std::io::BufWriter::new(std::fs::File::create(dst).unwrap());
+    let mut w = mcap::Writer::new(file).unwrap();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if let Some(data) = f(&m.channel.topic, &m.data) {
+            w.write(&mcap::Message {
+                data: Cow::Owned(data),
+                ..m
+            })
+            .unwrap();
+        }
+    }
+    w.finish().unwrap();
+}
+
+/// Rewrites only the IMU messages of `src`, through `f`.
+fn rewrite_imu(src: &Path, dst: &Path, f: impl Fn(&mut vinebench_msgs::ImuMsg)) {
+    rewrite(src, dst, |topic, data| {
+        if topic != "/imu/data" {
+            return Some(data.to_vec());
+        }
+        let mut m = ros::decode_imu(data).unwrap();
+        f(&mut m);
+        let mut out = Vec::new();
+        ros::encode_imu(&m, &mut out);
+        Some(out)
+    });
+}
+
+fn replay_with(recording: &Path, mapping: &str, out: &Path) -> ReplayOutcome {
+    let map = out.with_extension("toml");
+    std::fs::write(&map, mapping).unwrap();
+    replay(
+        recording,
+        &ReplayOptions {
+            config: Some(map),
+            out_dir: Some(out.to_path_buf()),
+            ..ReplayOptions::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("{}: {e}", out.display()))
+}
+
+/// The EIF's ATE RMSE against the recorded truth, m.
+fn eif_ate(r: &ReplayOutcome) -> f64 {
+    let eif = r.report.sources.iter().find(|s| s.name == "eif").unwrap();
+    eif.score.as_ref().unwrap().ate_rmse_m.unwrap()
+}
+
+fn yaw(deg: f64) -> UnitQuaternion<f64> {
+    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), deg.to_radians())
+}
+
+#[test]
+fn an_ned_imu_with_a_magnetic_heading_replays_as_the_enu_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let live = tmp.path().join("live");
+    drive(&live);
+    let recording = live.join("recording.mcap");
+    let reference = replay_with(&recording, TOPICS, &tmp.path().join("reference"));
+    let ate = eif_ate(&reference);
+
+    // The same IMU as a NED/FRD device with a magnetometer heading, 7.5° declination
+    // (magnetic north 7.5° east of true north, so the heading it reports is 7.5° less),
+    // written through the roll/pitch/heading a NED device reports (not through the
+    // replay's rotation matrices).
+    let declination = 7.5f64;
+    let ned = tmp.path().join("ned.mcap");
+    rewrite_imu(&recording, &ned, |m| {
+        let q = m.orientation.unwrap();
+        // ENU ZYX angles of the FLU body → NED angles of the FRD body: roll the same,
+        // pitch negated, heading clockwise from (magnetic) north.
+        let (roll, pitch, yaw_enu) = q.euler_angles();
+        let heading = std::f64::consts::FRAC_PI_2 - yaw_enu - declination.to_radians();
+        m.orientation = Some(UnitQuaternion::from_euler_angles(roll, -pitch, heading));
+        let flip = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));
+        m.angular_velocity = flip * m.angular_velocity;
+        m.linear_acceleration = flip * m.linear_acceleration;
+        let swap = Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0);
+        m.orientation_covariance = swap * m.orientation_covariance * swap;
+    });
+    // Read as ENU it is wrong: the filter is far off (or rejects the gravity it sees).
+    let wrong = replay_with(&ned, TOPICS, &tmp.path().join("ned-as-enu"));
+    let wrong_ate = wrong.report.sources[0]
+        .score
+        .as_ref()
+        .and_then(|s| s.ate_rmse_m)
+        .unwrap_or(f64::INFINITY);
+    assert!(wrong_ate > 10.0 * ate, "{wrong_ate} vs {ate}");
+    // With its conventions named, it replays to the same estimate (to rounding).
+    let mapping = format!("{TOPICS}[imu]\naxes = \"ned\"\ndeclination_deg = {declination}\n");
+    let converted = replay_with(&ned, &mapping, &tmp.path().join("ned"));
+    let c = eif_ate(&converted);
+    eprintln!(
+        "EIF ATE: ENU recording {ate:.5} m, NED + declination {c:.5} m, NED read as ENU {wrong_ate:.3} m"
+    );
+    assert!((c - ate).abs() < 1e-6, "{c} vs {ate}");
+}
+
+#[test]
+fn a_heading_offset_by_any_angle_is_harmless_with_relative_yaw() {
+    let tmp = tempfile::tempdir().unwrap();
+    let live = tmp.path().join("live");
+    drive(&live);
+    let recording = live.join("recording.mcap");
+    let reference = replay_with(&recording, TOPICS, &tmp.path().join("reference"));
+    let ate = eif_ate(&reference);
+    let relative = format!("{TOPICS}[imu]\nyaw = \"relative\"\n");
+    for offset in [0.0, 63.0, -120.0, 180.0] {
+        let shifted = tmp.path().join(format!("offset{offset}.mcap"));
+        rewrite_imu(&recording, &shifted, |m| {
+            m.orientation = m.orientation.map(|q| yaw(offset) * q);
+        });
+        let r = replay_with(
+            &shifted,
+            &relative,
+            &tmp.path().join(format!("rel{offset}")),
+        );
+        let eif = &r.report.sources[0];
+        let a = eif_ate(&r);
+        let note = eif
+            .notes
+            .iter()
+            .find(|n| n.starts_with("initialized"))
+            .unwrap();
+        eprintln!("offset {offset}°: EIF ATE {a:.4} m (true-north AHRS {ate:.4} m); {note}");
+        assert!(note.contains("from the course over ground"), "{note}");
+        assert!(a < 2.0 * ate + 0.02, "offset {offset}: {a} vs {ate}");
+        assert!(eif.used["gnss_course"] > 50, "{:?}", eif.used);
+        if offset.abs() > 90.0 {
+            // The same recording with the heading trusted is badly off.
+            let abs = replay_with(&shifted, TOPICS, &tmp.path().join(format!("abs{offset}")));
+            let bad = abs.report.sources[0]
+                .score
+                .as_ref()
+                .and_then(|s| s.ate_rmse_m)
+                .unwrap_or(f64::INFINITY);
+            assert!(bad > 5.0 * a, "absolute yaw {bad} vs relative {a}");
+        }
+    }
+    // A mapping that says both, differently, is refused by name.
+    let both = format!(
+        "{}[estimators.eif]\norientation_yaw = \"absolute\"\n[imu]\nyaw = \"relative\"\n",
+        TOPICS.replace("[estimators]\nrun = [\"eif\"]\n", "[estimators]\n")
+    );
+    let map = tmp.path().join("both.toml");
+    std::fs::write(&map, both).unwrap();
+    let e = replay(
+        &recording,
+        &ReplayOptions {
+            config: Some(map),
+            out_dir: Some(tmp.path().join("both")),
+            ..ReplayOptions::default()
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("imu.yaw") && e.contains("orientation_yaw"),
+        "{e}"
+    );
+}
