@@ -192,6 +192,9 @@ pub struct ReplayConfig {
     /// `[imu]`: how the recorded IMU reports its orientation.
     #[serde(default)]
     pub imu: ImuConventions,
+    /// `[gnss]`: what the recorded fixes' covariance and altitude are worth.
+    #[serde(default)]
+    pub gnss: GnssConventions,
     /// Geodetic origin of the ENU world frame (default: the first GNSS fix with a
     /// position).
     pub origin: Option<Geodetic>,
@@ -281,6 +284,99 @@ impl ImuConventions {
         m.linear_acceleration = b.transpose() * m.linear_acceleration;
         m.angular_velocity_covariance = b.transpose() * m.angular_velocity_covariance * b;
         m.linear_acceleration_covariance = b.transpose() * m.linear_acceleration_covariance * b;
+    }
+}
+
+/// `[gnss]` of a mapping file: fixes whose driver does not know their covariance
+/// (`position_covariance_type` 0), and receivers whose altitude is poor or absent.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GnssConventions {
+    /// `[horizontal, vertical]` 1σ, m, assumed for a fix of unknown covariance, by
+    /// solution: stand-alone (NavSatFix status 0 or 1).
+    #[serde(default = "GnssConventions::default_single")]
+    pub unknown_sigma_single_m: [f64; 2],
+    /// The same for RTK (NavSatFix status 2).
+    #[serde(default = "GnssConventions::default_rtk")]
+    pub unknown_sigma_rtk_m: [f64; 2],
+    /// `"use"` the recorded altitude, or `"ignore"` it (receivers with a poor altitude,
+    /// recordings without one): the fix's altitude is replaced by the map origin's with
+    /// [`IGNORED_ALTITUDE_SIGMA_M`], so the horizontal estimate does not depend on it and
+    /// the vertical is only held loosely.
+    #[serde(default)]
+    pub altitude: AltitudeUse,
+}
+
+/// Whether fix altitudes are used (`[gnss] altitude`).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AltitudeUse {
+    /// The recorded altitude and its variance.
+    #[default]
+    Use,
+    /// The origin's altitude with [`IGNORED_ALTITUDE_SIGMA_M`].
+    Ignore,
+}
+
+/// Vertical 1σ of a fix whose altitude is ignored, m.
+pub const IGNORED_ALTITUDE_SIGMA_M: f64 = 30.0;
+
+impl Default for GnssConventions {
+    fn default() -> Self {
+        GnssConventions {
+            unknown_sigma_single_m: Self::default_single(),
+            unknown_sigma_rtk_m: Self::default_rtk(),
+            altitude: AltitudeUse::Use,
+        }
+    }
+}
+
+impl GnssConventions {
+    /// A consumer single-frequency receiver's stand-alone fix (u-blox M8: 2.5 m CEP).
+    fn default_single() -> [f64; 2] {
+        [2.5, 5.0]
+    }
+    /// An RTK solution (float and fixed alike, as a driver's status 2 does not say).
+    fn default_rtk() -> [f64; 2] {
+        [0.05, 0.1]
+    }
+
+    fn check(&self) -> Result<(), String> {
+        for (key, v) in [
+            ("gnss.unknown_sigma_single_m", self.unknown_sigma_single_m),
+            ("gnss.unknown_sigma_rtk_m", self.unknown_sigma_rtk_m),
+        ] {
+            if !v.iter().all(|x| x.is_finite() && *x > 0.0) {
+                return Err(format!(
+                    "`{key}`: expected [horizontal, vertical] > 0 m, found {v:?}"
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Fills in an unknown covariance and applies `altitude`; `origin_alt_m` is the map
+    /// origin's altitude.
+    pub fn apply(&self, m: &mut vinebench_msgs::GnssFixMsg, origin_alt_m: f64) {
+        use nalgebra::{Matrix3, Vector3};
+        if m.status == FixStatus::NoFix {
+            return;
+        }
+        if !m.position_covariance.iter().all(|c| c.is_finite()) {
+            let [h, v] = match m.status {
+                FixStatus::Single => self.unknown_sigma_single_m,
+                _ => self.unknown_sigma_rtk_m,
+            };
+            m.position_covariance = Matrix3::from_diagonal(&Vector3::new(h * h, h * h, v * v));
+        }
+        if self.altitude == AltitudeUse::Ignore {
+            m.position.alt_m = origin_alt_m;
+            for k in 0..3 {
+                m.position_covariance[(2, k)] = 0.0;
+                m.position_covariance[(k, 2)] = 0.0;
+            }
+            m.position_covariance[(2, 2)] = IGNORED_ALTITUDE_SIGMA_M * IGNORED_ALTITUDE_SIGMA_M;
+        }
     }
 }
 
@@ -389,6 +485,10 @@ impl ReplayConfig {
                 });
             }
         }
+        cfg.gnss.check().map_err(|problem| ReplayError::Input {
+            file: file.to_string(),
+            problem,
+        })?;
         for (i, t) in cfg.static_transforms.iter().enumerate() {
             t.transform().map_err(|problem| ReplayError::Input {
                 file: file.to_string(),
@@ -709,10 +809,20 @@ fn collect(
         Scan::Index if is_sensor => {
             out.sensor_messages += 1;
             if role == Role::GnssFix && out.first_fix.is_none() {
+                // A fix without altitude (NaN: `[gnss] altitude = "ignore"` recordings)
+                // still places the origin, at altitude 0.
                 out.first_fix = ros::decode_nav_sat_fix(m.data)
                     .ok()
-                    .filter(|f| f.status != FixStatus::NoFix && f.position.is_valid())
-                    .map(|f| f.position);
+                    .filter(|f| f.status != FixStatus::NoFix)
+                    .map(|f| Geodetic {
+                        alt_m: if f.position.alt_m.is_finite() {
+                            f.position.alt_m
+                        } else {
+                            0.0
+                        },
+                        ..f.position
+                    })
+                    .filter(Geodetic::is_valid);
             }
             return None;
         }
@@ -1426,13 +1536,14 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             map_error = Some(e);
         }
     };
+    let origin_alt_m = sc.scenario.origin.alt_m;
     crate::recording::scan_any(file, |ch, m| {
         if let Some(mut msg) = collect(Scan::Sensors, &roles, &mut camera_topics, &mut got, ch, m) {
             rename_message(&cfg.frames, &mut msg);
-            if let Message::Imu(imu) = &mut msg
-                && cfg.imu.converts()
-            {
-                cfg.imu.convert(imu);
+            match &mut msg {
+                Message::Imu(imu) if cfg.imu.converts() => cfg.imu.convert(imu),
+                Message::GnssFix(fix) => cfg.gnss.apply(fix, origin_alt_m),
+                _ => {}
             }
             order.push(m.publish_time, msg, &mut feed);
         }

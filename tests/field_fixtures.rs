@@ -210,3 +210,122 @@ fn a_heading_offset_by_any_angle_is_harmless_with_relative_yaw() {
         "{e}"
     );
 }
+
+/// Rewrites the fixes of `src` through `f(fix, bytes)`, which returns the new bytes.
+fn rewrite_fix(src: &Path, dst: &Path, f: impl Fn(&mut vinebench_msgs::GnssFixMsg) -> Vec<u8>) {
+    rewrite(src, dst, |topic, data| {
+        if topic != "/gnss/fix" {
+            return Some(data.to_vec());
+        }
+        let mut m = ros::decode_nav_sat_fix(data).unwrap();
+        Some(f(&mut m))
+    });
+}
+
+/// Reads a TUM file: (stamp s, x, y, z).
+fn tum(path: &Path) -> Vec<[f64; 4]> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
+            [v[0], v[1], v[2], v[3]]
+        })
+        .collect()
+}
+
+/// RMS horizontal error of a replay's EIF against its ground truth at equal stamps
+/// (within 1 ms), m, and how many poses were compared.
+fn horizontal_rmse(dir: &Path) -> (f64, usize) {
+    let truth = tum(&dir.join("ground_truth.tum"));
+    let mut sum = 0.0;
+    let mut n = 0;
+    for e in tum(&dir.join("estimate_eif.tum")) {
+        let k = truth.partition_point(|t| t[0] < e[0] - 1e-3);
+        if let Some(t) = truth.get(k).filter(|t| (t[0] - e[0]).abs() <= 1e-3) {
+            sum += (e[1] - t[1]).powi(2) + (e[2] - t[2]).powi(2);
+            n += 1;
+        }
+    }
+    ((sum / n.max(1) as f64).sqrt(), n)
+}
+
+#[test]
+fn fixes_of_unknown_covariance_or_without_altitude_replay_from_the_mapping() {
+    let tmp = tempfile::tempdir().unwrap();
+    let live = tmp.path().join("live");
+    drive(&live);
+    let recording = live.join("recording.mcap");
+    let reference = replay_with(&recording, TOPICS, &tmp.path().join("reference"));
+    let (h_ref, n_ref) = horizontal_rmse(&tmp.path().join("reference"));
+    assert!(n_ref > 1000, "{n_ref} poses compared");
+
+    // A driver that does not know its covariance: zeros, position_covariance_type 0 (the
+    // last byte of the message). Taken as zero, the filter would trust each fix to 0.1 mm.
+    let unknown = tmp.path().join("unknown.mcap");
+    rewrite_fix(&recording, &unknown, |m| {
+        m.position_covariance = Matrix3::zeros();
+        let mut out = Vec::new();
+        ros::encode_nav_sat_fix(m, &mut out);
+        *out.last_mut().unwrap() = ros::COVARIANCE_TYPE_UNKNOWN;
+        out
+    });
+    let decoded = ros::decode_nav_sat_fix(&{
+        let mut one = None;
+        vinebench::recording::reader::scan_file(&unknown, |c, m| {
+            if c.topic == "/gnss/fix" && one.is_none() {
+                one = Some(m.data.to_vec());
+            }
+        })
+        .unwrap();
+        one.unwrap()
+    })
+    .unwrap();
+    assert!(decoded.position_covariance.iter().all(|c| c.is_nan()));
+    let r = replay_with(&unknown, TOPICS, &tmp.path().join("unknown"));
+    assert!(
+        r.report.invalid_dropped.is_empty(),
+        "{:?}",
+        r.report.invalid_dropped
+    );
+    let (h, _) = horizontal_rmse(&tmp.path().join("unknown"));
+    eprintln!(
+        "EIF horizontal RMSE: recorded covariance {h_ref:.4} m, unknown covariance (RTK \
+         default 5 cm) {h:.4} m"
+    );
+    assert!(h < 2.0 * h_ref + 0.02, "{h} vs {h_ref}");
+
+    // A receiver without altitude (NaN): with `[gnss] altitude = "ignore"` the horizontal
+    // estimate is as good as with it; without, every fix is invalid and the replay says so.
+    let flat = tmp.path().join("no-altitude.mcap");
+    rewrite_fix(&recording, &flat, |m| {
+        m.position.alt_m = f64::NAN;
+        let mut out = Vec::new();
+        ros::encode_nav_sat_fix(m, &mut out);
+        out
+    });
+    let ignore = format!("{TOPICS}[gnss]\naltitude = \"ignore\"\n");
+    replay_with(&flat, &ignore, &tmp.path().join("ignore"));
+    let (h, n) = horizontal_rmse(&tmp.path().join("ignore"));
+    eprintln!("EIF horizontal RMSE without altitude: {h:.4} m ({n} poses)");
+    assert!(
+        n > n_ref / 2 && h < 1.5 * h_ref + 0.01,
+        "{h} vs {h_ref}, {n} poses"
+    );
+    let r = replay_with(&flat, TOPICS, &tmp.path().join("use"));
+    assert!(
+        r.report
+            .invalid_dropped
+            .keys()
+            .any(|k| k.starts_with("/gnss/fix")),
+        "{:?}",
+        r.report.invalid_dropped
+    );
+    assert!(
+        r.report.nothing_usable.is_some(),
+        "{:?}",
+        r.report.sources[0].poses
+    );
+    drop(reference);
+}

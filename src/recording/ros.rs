@@ -7,7 +7,9 @@
 //! - `sensor_msgs/Imu` without an orientation has `orientation_covariance[0] = -1`;
 //! - `sensor_msgs/NavSatFix.status.status` is −1 no fix, 0 stand-alone, 2 RTK (ground-based
 //!   augmentation, what RTK receivers' drivers publish for float and fixed solutions);
-//!   `position_covariance_type` is `KNOWN` (3) when every entry is finite, else `UNKNOWN`.
+//!   `position_covariance_type` is `KNOWN` (3) when every entry is finite, else `UNKNOWN`;
+//!   decoded, `UNKNOWN` (0) gives a NaN covariance (whatever numbers a driver put there:
+//!   many publish zeros) and `DIAGONAL_KNOWN` (2) keeps only the diagonal.
 //!   vinebench keeps the float/fixed distinction in bit 15 of `status.service`
 //!   ([`SERVICE_VINEBENCH_RTK_FLOAT`]; the standard bits 0–3 name constellations, readers
 //!   ignore the rest); a field recording's status 2 reads as RTK fixed;
@@ -33,6 +35,8 @@ pub const SERVICE_VINEBENCH_RTK_FLOAT: u16 = 0x8000;
 pub const COVARIANCE_TYPE_UNKNOWN: u8 = 0;
 /// `NavSatFix.position_covariance_type`: known, full matrix.
 pub const COVARIANCE_TYPE_KNOWN: u8 = 3;
+/// `NavSatFix.position_covariance_type`: only the diagonal is known.
+pub const COVARIANCE_TYPE_DIAGONAL_KNOWN: u8 = 2;
 /// `distortion_model` of [`CameraInfoMsg`]: Brown-Conrady with `[k1, k2, p1, p2, k3]`.
 pub const PLUMB_BOB: &str = "plumb_bob";
 
@@ -351,8 +355,14 @@ pub fn decode_nav_sat_fix(payload: &[u8]) -> Result<GnssFixMsg, CdrError> {
         lon_deg: r.f64("longitude")?,
         alt_m: r.f64("altitude")?,
     };
-    let position_covariance = read_cov3(&mut r, "position_covariance")?;
-    let _covariance_type = r.u8("position_covariance_type")?;
+    let mut position_covariance = read_cov3(&mut r, "position_covariance")?;
+    match r.u8("position_covariance_type")? {
+        COVARIANCE_TYPE_UNKNOWN => position_covariance.fill(f64::NAN),
+        COVARIANCE_TYPE_DIAGONAL_KNOWN => {
+            position_covariance = Matrix3::from_diagonal(&position_covariance.diagonal());
+        }
+        _ => {}
+    }
     finish(&r)?;
     Ok(GnssFixMsg {
         stamp,
