@@ -12,7 +12,7 @@
 
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use std::borrow::Cow;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use vinebench::recording::ros;
 use vinebench::replay::{ReplayOptions, ReplayOutcome, replay};
 use vinebench::runner::{RunOptions, run};
@@ -31,17 +31,24 @@ const TOPICS: &str = "[topics]\nimu = \"/imu/data\"\ngnss_fix = \"/gnss/fix\"\n\
                       [estimators]\nrun = [\"eif\"]\n\
                       [origin]\nlat_deg = 40.4545\nlon_deg = 17.9085\nalt_m = 55.0\n";
 
-fn drive(dir: &Path) {
+/// The drive, simulated into a temporary folder: the folder, its recording and that
+/// recording replayed through [`TOPICS`] (into `reference/`).
+fn drive() -> (tempfile::TempDir, PathBuf, ReplayOutcome) {
+    let tmp = tempfile::tempdir().unwrap();
+    let live = tmp.path().join("live");
     let sc = LoadedScenario::from_str(DRIVE, "field-drive.toml").unwrap();
     run(
         &sc,
         &RunOptions {
-            out_dir: Some(dir.to_path_buf()),
+            out_dir: Some(live.clone()),
             progress: false,
             ..RunOptions::default()
         },
     )
     .unwrap();
+    let recording = live.join("recording.mcap");
+    let reference = replay_with(&recording, TOPICS, &tmp.path().join("reference"));
+    (tmp, recording, reference)
 }
 
 /// Rewrites the MCAP `src` into `dst`, passing each message's bytes through
@@ -91,10 +98,13 @@ fn replay_with(recording: &Path, mapping: &str, out: &Path) -> ReplayOutcome {
     .unwrap_or_else(|e| panic!("{}: {e}", out.display()))
 }
 
-/// The EIF's ATE RMSE against the recorded truth, m.
+/// The EIF's ATE RMSE against the recorded truth, m (infinite when it has none).
 fn eif_ate(r: &ReplayOutcome) -> f64 {
     let eif = r.report.sources.iter().find(|s| s.name == "eif").unwrap();
-    eif.score.as_ref().unwrap().ate_rmse_m.unwrap()
+    eif.score
+        .as_ref()
+        .and_then(|s| s.ate_rmse_m)
+        .unwrap_or(f64::INFINITY)
 }
 
 fn yaw(deg: f64) -> UnitQuaternion<f64> {
@@ -103,11 +113,7 @@ fn yaw(deg: f64) -> UnitQuaternion<f64> {
 
 #[test]
 fn an_ned_imu_with_a_magnetic_heading_replays_as_the_enu_one() {
-    let tmp = tempfile::tempdir().unwrap();
-    let live = tmp.path().join("live");
-    drive(&live);
-    let recording = live.join("recording.mcap");
-    let reference = replay_with(&recording, TOPICS, &tmp.path().join("reference"));
+    let (tmp, recording, reference) = drive();
     let ate = eif_ate(&reference);
 
     // The same IMU as a NED/FRD device with a magnetometer heading, 7.5° declination
@@ -130,12 +136,7 @@ fn an_ned_imu_with_a_magnetic_heading_replays_as_the_enu_one() {
         m.orientation_covariance = swap * m.orientation_covariance * swap;
     });
     // Read as ENU it is wrong: the filter is far off (or rejects the gravity it sees).
-    let wrong = replay_with(&ned, TOPICS, &tmp.path().join("ned-as-enu"));
-    let wrong_ate = wrong.report.sources[0]
-        .score
-        .as_ref()
-        .and_then(|s| s.ate_rmse_m)
-        .unwrap_or(f64::INFINITY);
+    let wrong_ate = eif_ate(&replay_with(&ned, TOPICS, &tmp.path().join("ned-as-enu")));
     assert!(wrong_ate > 10.0 * ate, "{wrong_ate} vs {ate}");
     // With its conventions named, it replays to the same estimate (to rounding).
     let mapping = format!("{TOPICS}[imu]\naxes = \"ned\"\ndeclination_deg = {declination}\n");
@@ -149,11 +150,7 @@ fn an_ned_imu_with_a_magnetic_heading_replays_as_the_enu_one() {
 
 #[test]
 fn a_heading_offset_by_any_angle_is_harmless_with_relative_yaw() {
-    let tmp = tempfile::tempdir().unwrap();
-    let live = tmp.path().join("live");
-    drive(&live);
-    let recording = live.join("recording.mcap");
-    let reference = replay_with(&recording, TOPICS, &tmp.path().join("reference"));
+    let (tmp, recording, reference) = drive();
     let ate = eif_ate(&reference);
     let relative = format!("{TOPICS}[imu]\nyaw = \"relative\"\n");
     for offset in [0.0, 63.0, -120.0, 180.0] {
@@ -179,12 +176,11 @@ fn a_heading_offset_by_any_angle_is_harmless_with_relative_yaw() {
         assert!(eif.used["gnss_course"] > 50, "{:?}", eif.used);
         if offset.abs() > 90.0 {
             // The same recording with the heading trusted is badly off.
-            let abs = replay_with(&shifted, TOPICS, &tmp.path().join(format!("abs{offset}")));
-            let bad = abs.report.sources[0]
-                .score
-                .as_ref()
-                .and_then(|s| s.ate_rmse_m)
-                .unwrap_or(f64::INFINITY);
+            let bad = eif_ate(&replay_with(
+                &shifted,
+                TOPICS,
+                &tmp.path().join(format!("abs{offset}")),
+            ));
             assert!(bad > 5.0 * a, "absolute yaw {bad} vs relative {a}");
         }
     }
@@ -253,11 +249,7 @@ fn horizontal_rmse(dir: &Path) -> (f64, usize) {
 
 #[test]
 fn fixes_of_unknown_covariance_or_without_altitude_replay_from_the_mapping() {
-    let tmp = tempfile::tempdir().unwrap();
-    let live = tmp.path().join("live");
-    drive(&live);
-    let recording = live.join("recording.mcap");
-    let reference = replay_with(&recording, TOPICS, &tmp.path().join("reference"));
+    let (tmp, recording, _) = drive();
     let (h_ref, n_ref) = horizontal_rmse(&tmp.path().join("reference"));
     assert!(n_ref > 1000, "{n_ref} poses compared");
 
@@ -327,5 +319,4 @@ fn fixes_of_unknown_covariance_or_without_altitude_replay_from_the_mapping() {
         "{:?}",
         r.report.sources[0].poses
     );
-    drop(reference);
 }
