@@ -642,7 +642,8 @@ impl Eif {
 
     /// Starts the filter at the latest AHRS sample if a recent valid fix is known.
     fn try_init(&mut self) {
-        let (Some((imu, q, q_cov)), Some(fix)) = (self.pre.imu, self.pre.fix.clone()) else {
+        let (Some((imu, mut q, mut q_cov)), Some(fix)) = (self.pre.imu, self.pre.fix.clone())
+        else {
             return;
         };
         if fix.stamp > imu.t || imu.t - fix.stamp > MAX_INIT_LAG {
@@ -652,7 +653,6 @@ impl Eif {
             return;
         };
         let r_ia = imu_from_antenna.translation.vector;
-        let (mut q, mut q_cov) = (q, q_cov);
         let mut heading_note = String::new();
         if self.cfg.relative_yaw {
             // The heading from the course over ground of the same epoch; roll and pitch
@@ -664,24 +664,13 @@ impl Eif {
                 return;
             }
             let forward = self.imu_from_body.rotation * Vector3::x();
-            let psi = measurement::heading_model(
-                &NavState {
-                    p: Vector3::zeros(),
-                    v: Vector3::zeros(),
-                    q,
-                    p_clone: Vector3::zeros(),
-                    q_clone: q,
-                },
-                &forward,
-            );
+            let psi = measurement::heading_model(&q, &forward);
             q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), z - psi) * q;
-            let mut c = q_cov;
             for k in 0..3 {
-                c[(2, k)] = 0.0;
-                c[(k, 2)] = 0.0;
+                q_cov[(2, k)] = 0.0;
+                q_cov[(k, 2)] = 0.0;
             }
-            c[(2, 2)] = var;
-            q_cov = c;
+            q_cov[(2, 2)] = var;
             heading_note = format!(
                 ", heading {:.1}° from the course over ground (±{:.1}°)",
                 z.to_degrees(),
@@ -896,7 +885,7 @@ impl Eif {
                     let forward = imu_from_body_rot * Vector3::x();
                     // Driving backwards: the track points the other way.
                     let mut z = *z;
-                    if measurement::wrap_pi(z - measurement::heading_model(&nav, &forward)).abs()
+                    if measurement::wrap_pi(z - measurement::heading_model(&nav.q, &forward)).abs()
                         > std::f64::consts::FRAC_PI_2
                     {
                         z += std::f64::consts::PI;

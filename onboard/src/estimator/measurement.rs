@@ -97,9 +97,9 @@ pub fn tilt(x: &NavState, z: &UnitQuaternion<f64>) -> Linearized<2> {
 }
 
 /// The heading of the body's forward axis in the world (rad, counter-clockwise from east):
-/// the yaw of `R e_f`, `e_f` the body x axis in the IMU frame.
-pub fn heading_model(x: &NavState, forward_in_imu: &Vector3<f64>) -> f64 {
-    let f = x.q * forward_in_imu;
+/// the yaw of `R e_f`, `R` = `world_from_imu`, `e_f` the body x axis in the IMU frame.
+pub fn heading_model(world_from_imu: &UnitQuaternion<f64>, forward_in_imu: &Vector3<f64>) -> f64 {
+    let f = world_from_imu * forward_in_imu;
     f.y.atan2(f.x)
 }
 
@@ -116,7 +116,7 @@ pub fn course(x: &NavState, forward_in_imu: &Vector3<f64>, z: f64) -> Linearized
     h.fixed_view_mut::<1, 3>(0, IDX_TH)
         .copy_from(&(dpsi_df * (-(r * skew(forward_in_imu)))));
     Linearized {
-        residual: SVector::<f64, 1>::new(wrap_pi(z - heading_model(x, forward_in_imu))),
+        residual: SVector::<f64, 1>::new(wrap_pi(z - heading_model(&x.q, forward_in_imu))),
         h,
     }
 }
@@ -303,11 +303,11 @@ mod tests {
         for _ in 0..50 {
             let x = random_state(&mut rng);
             let ef = exp(&v3(&mut rng, 0.3)) * Vector3::x();
-            let psi = heading_model(&x, &ef);
+            let psi = heading_model(&x.q, &ef);
             let lin = course(&x, &ef, psi);
             assert!(lin.residual[0].abs() < 1e-12);
             let num = numeric(&x, |y| {
-                SVector::<f64, 1>::new(wrap_pi(heading_model(y, &ef) - psi))
+                SVector::<f64, 1>::new(wrap_pi(heading_model(&y.q, &ef) - psi))
             });
             check("course", &lin.h, &num);
             // Across ±π the residual is the short way round.
