@@ -296,7 +296,7 @@ pub fn scan_as_cdr<F>(
 where
     F: FnMut(&super::reader::ChannelInfo, &super::reader::RawMessage<'_>),
 {
-    use super::reader::{ChannelInfo, Damage, McapSummary, RawMessage};
+    use super::reader::{ChannelInfo, Damage, McapSummary};
     use std::sync::Arc;
     let mut channels: HashMap<u32, (Arc<ChannelInfo>, Result<super::ros1::Definitions, String>)> =
         HashMap::new();
@@ -335,18 +335,7 @@ where
                 .and_then(|d| d.transcode(data));
             match cdr {
                 Ok(cdr) => {
-                    sequence = sequence.wrapping_add(1);
-                    summary.count_unverified(&info.topic);
-                    on_message(
-                        info,
-                        &RawMessage {
-                            sequence,
-                            log_time: time,
-                            publish_time: time,
-                            data: &cdr,
-                            verified: false,
-                        },
-                    );
+                    summary.deliver_unverified(&mut sequence, info, time, &cdr, &mut on_message)
                 }
                 Err(e) => {
                     if damage.problems.len() < MAX_LISTED {

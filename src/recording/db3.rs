@@ -99,18 +99,7 @@ where
                 d.orphan_messages += 1;
                 continue;
             };
-            sequence = sequence.wrapping_add(1);
-            summary.count_unverified(&info.topic);
-            on_message(
-                info,
-                &RawMessage {
-                    sequence,
-                    log_time: Nanos(stamp),
-                    publish_time: Nanos(stamp),
-                    data,
-                    verified: false,
-                },
-            );
+            summary.deliver_unverified(&mut sequence, info, Nanos(stamp), data, &mut on_message);
         }
     }
     summary.channels = by_name.into_values().map(|c| (c.id, c)).collect();

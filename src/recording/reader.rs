@@ -276,15 +276,36 @@ pub struct McapSummary {
 }
 
 impl McapSummary {
-    /// Counts one message delivered on `topic` that no CRC covered (how the readers of the
-    /// other storages, ROS 1 bags and `.db3`, account for what they deliver).
-    pub fn count_unverified(&mut self, topic: &str) {
+    /// Hands on one message that no CRC covered, stamped `time` (log and publish time
+    /// alike), and counts it: how the readers of the other storages, ROS 1 bags and
+    /// `.db3`, deliver. `sequence` numbers the file's messages from 1.
+    pub fn deliver_unverified<F>(
+        &mut self,
+        sequence: &mut u32,
+        info: &ChannelInfo,
+        time: Nanos,
+        data: &[u8],
+        on_message: &mut F,
+    ) where
+        F: FnMut(&ChannelInfo, &RawMessage<'_>),
+    {
+        *sequence = sequence.wrapping_add(1);
         self.messages += 1;
         self.unverified_messages += 1;
         *self
             .messages_per_topic
-            .entry(topic.to_string())
+            .entry(info.topic.clone())
             .or_default() += 1;
+        on_message(
+            info,
+            &RawMessage {
+                sequence: *sequence,
+                log_time: time,
+                publish_time: time,
+                data,
+                verified: false,
+            },
+        );
     }
 }
 
