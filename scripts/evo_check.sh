@@ -8,8 +8,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-EVO_VERSION="1.38.1"
-VENV="target/evo-venv"
 RUN="target/evo-check-run"
 TOL="1e-6"
 
@@ -17,10 +15,7 @@ cargo build --release --locked --bin vinebench
 rm -rf "$RUN"
 ./target/release/vinebench run scenarios/row-loop-rtk-outage.toml --quiet --out "$RUN"
 
-if ! "$VENV/bin/python" -c "import evo, sys; sys.exit(evo.__version__ != '$EVO_VERSION')" 2>/dev/null; then
-    python3 -m venv "$VENV"
-    "$VENV/bin/pip" install --quiet --disable-pip-version-check "evo==$EVO_VERSION"
-fi
+source scripts/evo-venv.sh
 
 TMAX=$(python3 -c "import tomllib; print(tomllib.load(open('$RUN/scenario.resolved.toml','rb'))['scoring']['t_max_diff_s'])")
 status=0

@@ -10,17 +10,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-EVO_VERSION="1.38.1"
-VENV="target/evo-venv"
 WORK="target/evo-drop-in"
 TOL="1e-6"
 TABLE="${1:-}"
 
 cargo build --release --locked --bin vinebench
-if ! "$VENV/bin/python" -c "import evo, sys; sys.exit(evo.__version__.lstrip('v') != '$EVO_VERSION')" 2>/dev/null; then
-    python3 -m venv "$VENV"
-    "$VENV/bin/pip" install --quiet --disable-pip-version-check "evo==$EVO_VERSION"
-fi
+source scripts/evo-venv.sh
 DATA="$WORK/evo-$EVO_VERSION/test/data"
 if [ ! -f "$DATA/KITTI_00_ORB.txt" ]; then
     mkdir -p "$WORK"

@@ -10,13 +10,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-VENV="target/evo-venv"
 WORK="target/ros1-bag-check"
 cargo build --release --locked --bin vinebench
-if ! "$VENV/bin/python" -c "import rosbags" 2>/dev/null; then
-    python3 -m venv "$VENV"
-    "$VENV/bin/pip" install --quiet --disable-pip-version-check "evo==1.38.1"
-fi
+source scripts/evo-venv.sh
 B=./target/release/vinebench
 rm -rf "$WORK"
 mkdir -p "$WORK"
