@@ -248,6 +248,20 @@ pub struct ImuConventions {
 }
 
 impl ImuConventions {
+    fn check(&self) -> Result<(), String> {
+        for (key, v) in [
+            ("imu.declination_deg", self.declination_deg),
+            ("imu.yaw_offset_deg", self.yaw_offset_deg),
+        ] {
+            if !(v.is_finite() && v.abs() <= 360.0) {
+                return Err(format!(
+                    "`{key}`: expected degrees in [-360, 360], found {v}"
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// True when messages need converting.
     fn converts(&self) -> bool {
         self.axes != ImuAxes::Enu || self.declination_deg != 0.0 || self.yaw_offset_deg != 0.0
@@ -474,21 +488,13 @@ impl ReplayConfig {
                 file: file.to_string(),
                 problem: format!("`{}`: {}", e.path(), e.inner().message().trim()),
             })?;
-        for (key, v) in [
-            ("imu.declination_deg", cfg.imu.declination_deg),
-            ("imu.yaw_offset_deg", cfg.imu.yaw_offset_deg),
-        ] {
-            if !(v.is_finite() && v.abs() <= 360.0) {
-                return Err(ReplayError::Input {
-                    file: file.to_string(),
-                    problem: format!("`{key}`: expected degrees in [-360, 360], found {v}"),
-                });
-            }
-        }
-        cfg.gnss.check().map_err(|problem| ReplayError::Input {
-            file: file.to_string(),
-            problem,
-        })?;
+        cfg.imu
+            .check()
+            .and_then(|()| cfg.gnss.check())
+            .map_err(|problem| ReplayError::Input {
+                file: file.to_string(),
+                problem,
+            })?;
         for (i, t) in cfg.static_transforms.iter().enumerate() {
             t.transform().map_err(|problem| ReplayError::Input {
                 file: file.to_string(),
@@ -2035,6 +2041,34 @@ mod tests {
             .to_string();
             assert!(e.contains("static_transforms[0]") && e.contains(why), "{e}");
         }
+    }
+
+    #[test]
+    fn bad_imu_and_gnss_conventions_name_their_key() {
+        for (bad, key) in [
+            ("[imu]\ndeclination_deg = nan", "imu.declination_deg"),
+            ("[imu]\nyaw_offset_deg = 400.0", "imu.yaw_offset_deg"),
+            ("[imu]\naxes = \"nwu\"", "imu.axes"),
+            (
+                "[gnss]\nunknown_sigma_rtk_m = [0.05, 0.0]",
+                "gnss.unknown_sigma_rtk_m",
+            ),
+            (
+                "[gnss]\nunknown_sigma_single_m = [2.5]",
+                "gnss.unknown_sigma_single_m",
+            ),
+            ("[gnss]\naltitude = \"maybe\"", "gnss.altitude"),
+        ] {
+            let e = ReplayConfig::from_str(bad, "m.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("m.toml") && e.contains(key), "{bad}: {e}");
+        }
+        let ok =
+            ReplayConfig::from_str("[imu]\naxes = \"ned\"\ndeclination_deg = -12.5\n", "m.toml")
+                .unwrap();
+        assert_eq!(ok.imu.axes, ImuAxes::Ned);
+        assert_eq!(ok.gnss, GnssConventions::default());
     }
 
     #[test]
