@@ -1086,6 +1086,34 @@ fn scenario_of_config(
             }
         }
     }
+    // What the mapped topics can feed, where the mapping file does not say: wheel
+    // odometry into the EIF, and the sources whose input is recorded.
+    if cfg.topics.wheel_odom.is_some()
+        && let toml::Value::Table(eif) = estimators
+            .entry("eif")
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+    {
+        eif.entry("use_wheel_odometry")
+            .or_insert(toml::Value::Boolean(true));
+    }
+    if !estimators.contains_key("run") {
+        let run: Vec<toml::Value> = [
+            Some("eif"),
+            Some("gnss"),
+            cfg.topics.tracking_odom.as_ref().map(|_| "tracking_camera"),
+            cfg.topics.wheel_odom.as_ref().map(|_| "dead_reckoning"),
+        ]
+        .into_iter()
+        .flatten()
+        .map(|k| toml::Value::String(k.into()))
+        .collect();
+        estimators.insert("run".into(), toml::Value::Array(run));
+    }
+    if let Some(toml::Value::Table(eif)) = estimators.get("eif")
+        && eif.is_empty()
+    {
+        estimators.remove("eif");
+    }
     if !estimators.is_empty() {
         t.insert("estimators".into(), toml::Value::Table(estimators));
     }

@@ -7,7 +7,8 @@
 //!   ([`InsCore::predict`]).
 //! - **Corrections** ([`super::measurement`]): GNSS position (eq. 1, antenna lever arm),
 //!   GNSS velocity, AHRS orientation, tracking-camera relative pose (eq. 2 between
-//!   consecutive messages, against the clone).
+//!   consecutive messages, against the clone), wheel odometry (`use_wheel_odometry`: the
+//!   body-frame velocity with the non-holonomic constraint).
 //!
 //! ## Information form
 //! After every correction the filter's canonical representation is the information pair
@@ -50,6 +51,17 @@
 //!   local, so `R = R̂ᵀ Σ_world R̂` (plus [`ROTATION_FLOOR_RAD`]²).
 //! - Tracking camera: per axis `σ_p = max(floor, k_p·√d)`, `σ_θ = max(floor, k_θ·√d)`,
 //!   `d = |Δp|` the measured displacement.
+//! - Wheel odometry: the velocity of the odometry's moving frame in that frame. Forward
+//!   (and, where the message measures it, as a mecanum drive's does, lateral) speed with
+//!   variance `max(reported, σ_w² + (slip·v)²)`: a driver's zero or tiny covariance never
+//!   makes the wheels more trusted than their slip allows. Unmeasured axes (variance
+//!   ≥ [`WHEEL_UNMEASURED_VARIANCE`], NaN or ≤ 0) are the non-holonomic constraint:
+//!   lateral 0 ± `wheel_lateral_sigma_mps`, vertical 0 ± `wheel_vertical_sigma_mps`.
+//!   Slip-aware: a reading whose `yᵀS⁻¹y` exceeds `wheel_gate_chi2` (wheels spinning or
+//!   sliding against what IMU and GNSS say) is rejected (`wheel_slip_gated`); after
+//!   [`WHEEL_GATE_RECOVERY`] in a row the filter's velocity uncertainty is re-opened to
+//!   the innovation and the reading used (`wheel_gate_recovered`). Slip is correlated
+//!   along the track: `wheel_correlation_time_s` weights readings like the GNSS ones.
 //!
 //! GNSS position and AHRS errors wander slowly (Gauss-Markov), so consecutive readings
 //! are not independent. With `gnss_correlation_time_s` / `orientation_correlation_time_s`
@@ -110,6 +122,12 @@ const MIN_CORRELATION_DT_S: f64 = 1e-3;
 /// `gnss_gate_recovered` in the stats), so an overconfident filter can never lock
 /// itself out of GNSS for good.
 pub const GATE_RECOVERY_FIXES: u32 = 10;
+/// A wheel-odometry twist variance at or above this (m²/s²) marks the axis as not
+/// measured (ROS drivers report 1e3–1e6 there, as `diff_drive_controller` does).
+pub const WHEEL_UNMEASURED_VARIANCE: f64 = 1e3;
+/// Consecutive wheel readings the slip gate may reject before the filter re-opens its
+/// velocity uncertainty (1 s at 50 Hz).
+pub const WHEEL_GATE_RECOVERY: u32 = 50;
 
 /// The EIF's parameters in SI units.
 #[derive(Clone, Debug, PartialEq)]
@@ -136,6 +154,15 @@ struct Config {
     course_min_baseline: f64,
     /// rad.
     course_floor: f64,
+    use_wheel: bool,
+    wheel_speed_sigma: f64,
+    wheel_slip: f64,
+    wheel_lateral_sigma: f64,
+    wheel_vertical_sigma: f64,
+    wheel_gate_chi2: f64,
+    wheel_tau: f64,
+    /// m; 0 = no scale calibration.
+    wheel_calibration_length: f64,
 }
 
 impl Config {
@@ -207,6 +234,17 @@ impl Config {
             course_min_baseline: positive("course_min_baseline_m", p.course_min_baseline_m)?,
             course_floor: positive("course_sigma_floor_deg", p.course_sigma_floor_deg)?
                 .to_radians(),
+            use_wheel: p.use_wheel_odometry,
+            wheel_speed_sigma: positive("wheel_speed_sigma_mps", p.wheel_speed_sigma_mps)?,
+            wheel_slip: nonneg("wheel_slip_fraction", p.wheel_slip_fraction)?,
+            wheel_lateral_sigma: positive("wheel_lateral_sigma_mps", p.wheel_lateral_sigma_mps)?,
+            wheel_vertical_sigma: positive("wheel_vertical_sigma_mps", p.wheel_vertical_sigma_mps)?,
+            wheel_gate_chi2: nonneg("wheel_gate_chi2", p.wheel_gate_chi2)?,
+            wheel_tau: nonneg("wheel_correlation_time_s", p.wheel_correlation_time_s)?,
+            wheel_calibration_length: nonneg(
+                "wheel_calibration_length_m",
+                p.wheel_calibration_length_m,
+            )?,
         })
     }
 }
@@ -291,6 +329,13 @@ enum Pending {
         imu_from_cam: Isometry3<f64>,
         odom_from_cam: Isometry3<f64>,
     },
+    /// Wheel odometry: the velocity of its moving frame `o` in `o`.
+    Wheel {
+        z: Vector3<f64>,
+        /// Per-axis variance, m²/s².
+        var: Vector3<f64>,
+        imu_from_o: Isometry3<f64>,
+    },
 }
 
 /// The previous tracking-camera message, the one the clone was taken at.
@@ -318,6 +363,11 @@ struct Filter {
     last_fix_used: Nanos,
     /// GNSS fixes rejected by the gate since the last accepted one.
     gated_in_a_row: u32,
+    last_wheel_used: Nanos,
+    /// Online wheel scale calibration ([`calibrate_wheel_scale`]).
+    wheel_scale: WheelScale,
+    /// Wheel readings rejected by the slip gate since the last accepted one.
+    wheel_gated_in_a_row: u32,
     last_orientation_used: Nanos,
     last_orientation_queued: Option<Nanos>,
     next_output: Nanos,
@@ -484,14 +534,15 @@ fn symmetrize(m: &mut Mat15) {
 /// Per-kind counts of one correction group.
 #[derive(Default)]
 struct GroupCounts {
-    kinds: [u64; 5],
+    kinds: [u64; 6],
 }
-const KIND_NAMES: [&str; 5] = [
+const KIND_NAMES: [&str; 6] = [
     "gnss_fix",
     "gnss_velocity",
     "imu_orientation",
     "tracking_odom",
     "gnss_course",
+    "wheel_odom",
 ];
 
 impl Eif {
@@ -636,6 +687,7 @@ impl Eif {
                 self.stats.count_rejected("before_init");
             }
             Message::TrackingOdom(_) => self.stats.count_rejected("before_init"),
+            Message::WheelOdom(_) if self.cfg.use_wheel => self.stats.count_rejected("before_init"),
             Message::WheelOdom(_) | Message::Image(_) | Message::CameraInfo(_) => {}
         }
     }
@@ -740,6 +792,9 @@ impl Eif {
             prev_tracking: None,
             last_fix_used: fix.stamp,
             gated_in_a_row: 0,
+            last_wheel_used: fix.stamp,
+            wheel_scale: WheelScale::default(),
+            wheel_gated_in_a_row: 0,
             last_orientation_used: imu.t,
             last_orientation_queued: Some(imu.t),
             next_output: imu.t + self.cfg.output_period,
@@ -793,6 +848,7 @@ impl Eif {
         let mut counts = GroupCounts::default();
         let mut n_info = 0usize;
         let mut recovered = 0u32;
+        let mut wheel_recovered = 0u32;
         let mut reject = |why: &str| stats.count_rejected(why);
         let mut reclone_with: Option<PrevTracking> = None;
         let nav = f.core.nav.clone();
@@ -899,6 +955,49 @@ impl Eif {
                         reject("numerical_skip");
                     }
                 }
+                Pending::Wheel { z, var, imu_from_o } => {
+                    let z = if cfg.wheel_calibration_length > 0.0 {
+                        calibrate_wheel_scale(f, &nav, imu_from_o, z, cfg.wheel_calibration_length)
+                    } else {
+                        *z
+                    };
+                    let lin = measurement::body_velocity(&nav, imu_from_o, &f.omega, &z);
+                    let r = Matrix3::from_diagonal(var)
+                        * correlation_inflation(cfg.wheel_tau, f.t - f.last_wheel_used);
+                    if cfg.wheel_gate_chi2 > 0.0 {
+                        let s = lin.h * f.core.cov * lin.h.transpose() + r;
+                        let Some(c) = Cholesky::new(s) else {
+                            reject("numerical_skip");
+                            continue;
+                        };
+                        let d2 = lin.residual.dot(&c.solve(&lin.residual));
+                        if d2.is_nan() {
+                            reject("numerical_skip");
+                            continue;
+                        }
+                        if d2 > cfg.wheel_gate_chi2 {
+                            f.wheel_gated_in_a_row += 1;
+                            if f.wheel_gated_in_a_row <= WHEEL_GATE_RECOVERY {
+                                reject("wheel_slip_gated");
+                                continue;
+                            }
+                            // A second of wheels disagreeing: the filter's velocity, not
+                            // the wheels, is off. Re-open it to the innovation (in world).
+                            let to_world = rot * imu_from_o.rotation.to_rotation_matrix();
+                            let y = to_world * lin.residual;
+                            let mut vv = f.core.cov.fixed_view_mut::<3, 3>(IDX_V, IDX_V);
+                            vv += y * y.transpose();
+                            wheel_recovered += 1;
+                        }
+                        f.wheel_gated_in_a_row = 0;
+                    }
+                    if add_information(&mut lambda_add, &mut eta, &lin, &r).is_some() {
+                        counts.kinds[5] += 1;
+                        n_info += 1;
+                    } else {
+                        reject("numerical_skip");
+                    }
+                }
                 Pending::Tracking {
                     child,
                     imu_from_cam,
@@ -961,6 +1060,9 @@ impl Eif {
             if counts.kinds[2] > 0 {
                 f.last_orientation_used = f.t;
             }
+            if counts.kinds[5] > 0 {
+                f.last_wheel_used = f.t;
+            }
         }
         if let Some(prev) = reclone_with {
             f.core.reclone();
@@ -968,6 +1070,9 @@ impl Eif {
         }
         for _ in 0..recovered {
             self.stats.count_event("gnss_gate_recovered");
+        }
+        for _ in 0..wheel_recovered {
+            self.stats.count_event("wheel_gate_recovered");
         }
         for (k, name) in KIND_NAMES.iter().enumerate() {
             for _ in 0..counts.kinds[k] {
@@ -1145,6 +1250,37 @@ impl Eif {
         ));
     }
 
+    fn on_wheel(&mut self, m: &OdometryMsg) {
+        if !self.cfg.use_wheel {
+            return;
+        }
+        let Some(imu_from_o) = self.imu_from(&m.child_frame_id) else {
+            return;
+        };
+        let cfg = &self.cfg;
+        let measured = |i: usize| {
+            let v = m.twist_covariance[(i, i)];
+            (v.is_finite() && v > 0.0 && v < WHEEL_UNMEASURED_VARIANCE).then_some(v)
+        };
+        let speed_var = |v: f64, reported: Option<f64>| {
+            let model = cfg.wheel_speed_sigma.powi(2) + (cfg.wheel_slip * v).powi(2);
+            reported.map_or(model, |r| r.max(model))
+        };
+        let vx = m.linear_velocity.x;
+        let (zy, var_y) = match measured(1) {
+            Some(r) => (m.linear_velocity.y, speed_var(m.linear_velocity.y, Some(r))),
+            None => (0.0, cfg.wheel_lateral_sigma.powi(2)),
+        };
+        let z = Vector3::new(vx, zy, 0.0);
+        let var = Vector3::new(
+            speed_var(vx, measured(0)),
+            var_y,
+            cfg.wheel_vertical_sigma.powi(2),
+        );
+        self.pending
+            .push_back((m.stamp, Pending::Wheel { z, var, imu_from_o }));
+    }
+
     fn on_tracking(&mut self, m: &OdometryMsg) {
         if !self.cfg.use_tracking_camera {
             return;
@@ -1161,6 +1297,79 @@ impl Eif {
             },
         ));
     }
+}
+
+/// Wheel speeds are scaled by [`calibrate_wheel_scale`] only once this many metres of
+/// calibration have been collected, and never by more than this range.
+const WHEEL_SCALE_MIN_M: f64 = 5.0;
+/// The range of the wheel scale factor (a skid-steer over-reads by slip, a few per cent;
+/// tyre wear or a wrong radius by a few more).
+const WHEEL_SCALE_RANGE: (f64, f64) = (0.8, 1.25);
+/// The filter's velocity must be known this well (largest 1σ, m/s) for a wheel reading
+/// to calibrate the scale.
+const WHEEL_SCALE_MAX_SIGMA_MPS: f64 = 0.05;
+/// Slowest wheel speed that calibrates the scale, m/s.
+const WHEEL_SCALE_MIN_SPEED_MPS: f64 = 0.3;
+
+/// The wheel reading `z` with its measured speeds scaled by the online scale factor, and
+/// the factor's sums updated. While the filter's velocity is well known (GNSS), each
+/// reading adds its forward speed `z_x` and the filter's predicted one `v̂_x` to
+/// distance-forgetting least squares `k = Σ v̂_x z_x / Σ z_x²` (each reading's weight
+/// decays by `exp(−d/L)` over the `d` metres driven after it; `L` =
+/// `wheel_calibration_length_m`); once [`WHEEL_SCALE_MIN_M`] of driving have been
+/// collected, `z` is multiplied by `k` (clamped to [`WHEEL_SCALE_RANGE`]). A skid-steer's
+/// encoders over-read the distance by the tracks' slip, a bias that no amount of white
+/// noise in the model absorbs: through a GNSS outage the scaled speeds hold the track.
+fn calibrate_wheel_scale(
+    f: &mut Filter,
+    nav: &NavState,
+    imu_from_o: &Isometry3<f64>,
+    z: &Vector3<f64>,
+    length_m: f64,
+) -> Vector3<f64> {
+    let w = &mut f.wheel_scale;
+    let dt = w.last_t.map_or(0.0, |t| (f.t - t).as_secs_f64());
+    w.last_t = Some(f.t);
+    let sigma_v = f
+        .core
+        .cov
+        .fixed_view::<3, 3>(IDX_V, IDX_V)
+        .diagonal()
+        .max()
+        .max(0.0)
+        .sqrt();
+    if sigma_v <= WHEEL_SCALE_MAX_SIGMA_MPS && z.x.abs() >= WHEEL_SCALE_MIN_SPEED_MPS {
+        let v_hat = measurement::body_velocity_model(nav, imu_from_o, &f.omega).x;
+        let d = (z.x.abs() * dt).min(length_m);
+        let keep = (-d / length_m).exp();
+        w.num = w.num * keep + v_hat * z.x;
+        w.den = w.den * keep + z.x * z.x;
+        w.dist = w.dist * keep + d;
+        if w.dist >= WHEEL_SCALE_MIN_M {
+            w.ready = true;
+        }
+    }
+    if !(w.ready && w.den > 0.0 && w.num.is_finite()) {
+        return *z;
+    }
+    let k = (w.num / w.den).clamp(WHEEL_SCALE_RANGE.0, WHEEL_SCALE_RANGE.1);
+    w.k = k;
+    Vector3::new(z.x * k, z.y * k, z.z)
+}
+
+/// The state of [`calibrate_wheel_scale`].
+#[derive(Clone, Debug, Default)]
+struct WheelScale {
+    /// Forgetting sums of `v̂_x·z_x` and `z_x²`.
+    num: f64,
+    den: f64,
+    /// Forgetting sum of the distance calibrated on, m.
+    dist: f64,
+    last_t: Option<Nanos>,
+    /// Once [`WHEEL_SCALE_MIN_M`] have been collected.
+    ready: bool,
+    /// The factor last applied.
+    k: f64,
 }
 
 /// Propagates the filter from its time to `t` (inside `interval`).
@@ -1244,7 +1453,8 @@ impl Estimator for Eif {
             Message::GnssFix(m) => self.on_fix(m),
             Message::GnssVelocity(m) => self.on_velocity(m),
             Message::TrackingOdom(m) => self.on_tracking(m),
-            Message::WheelOdom(_) | Message::Image(_) | Message::CameraInfo(_) => {}
+            Message::WheelOdom(m) => self.on_wheel(m),
+            Message::Image(_) | Message::CameraInfo(_) => {}
         }
     }
 
@@ -1255,6 +1465,15 @@ impl Estimator for Eif {
         self.settle();
         while self.pending.pop_front().is_some() {
             self.stats.count_rejected("after_last_imu");
+        }
+        if let Some(f) = &self.filter
+            && f.wheel_scale.ready
+        {
+            self.stats.notes.push(format!(
+                "wheel speeds scaled by {:.4} (online calibration against GNSS; {:.1} m in \
+                 its window at the end)",
+                f.wheel_scale.k, f.wheel_scale.dist
+            ));
         }
         if self.filter.is_none() {
             self.stats.notes.push(if self.cfg.relative_yaw {

@@ -131,6 +131,41 @@ pub fn wrap_pi(a: f64) -> f64 {
     }
 }
 
+/// Predicted wheel-odometry velocity: the velocity of the odometry's moving frame `o`
+/// (usually `base_link`) in that frame, `R_ioᵀ(Rᵀv + ω × r_io)`, with `imu_from_o =
+/// (R_io, r_io)` and `ω` the IMU's angular rate in the IMU frame (rad/s).
+pub fn body_velocity_model(
+    x: &NavState,
+    imu_from_o: &nalgebra::Isometry3<f64>,
+    omega: &Vector3<f64>,
+) -> Vector3<f64> {
+    let v_imu = x.q.inverse() * x.v;
+    imu_from_o.rotation.inverse() * (v_imu + omega.cross(&imu_from_o.translation.vector))
+}
+
+/// Wheel odometry with the non-holonomic constraint: `z` the velocity of frame `o` in
+/// `o` (forward speed from the wheels, lateral and vertical 0 for a vehicle that does
+/// not slide sideways or leave the ground), m/s. With `Rᵀ` of the perturbed state
+/// `≈ (I − [δθ]×)Rᵀ`: `H = [0, R_ioᵀRᵀ, R_ioᵀ[Rᵀv]×, 0]`.
+pub fn body_velocity(
+    x: &NavState,
+    imu_from_o: &nalgebra::Isometry3<f64>,
+    omega: &Vector3<f64>,
+    z: &Vector3<f64>,
+) -> Linearized<3> {
+    let r = x.q.to_rotation_matrix().into_inner();
+    let r_io = imu_from_o.rotation.to_rotation_matrix().into_inner();
+    let mut h = SMatrix::<f64, 3, STATE_DIM>::zeros();
+    h.fixed_view_mut::<3, 3>(0, IDX_V)
+        .copy_from(&(r_io.transpose() * r.transpose()));
+    h.fixed_view_mut::<3, 3>(0, IDX_TH)
+        .copy_from(&(r_io.transpose() * skew(&(r.transpose() * x.v))));
+    Linearized {
+        residual: z - body_velocity_model(x, imu_from_o, omega),
+        h,
+    }
+}
+
 /// Eq. (2) predicted, relative: the motion of the IMU frame since the clone,
 /// `imu_c_from_imu = (R_cᵀ(p − p_c), R_cᵀ R)`.
 pub fn relative_pose_model(x: &NavState) -> (Vector3<f64>, UnitQuaternion<f64>) {
@@ -249,6 +284,24 @@ mod tests {
             let lin = gnss_velocity(&x, &r_ia, &omega, &Vector3::zeros());
             let num = numeric(&x, |y| gnss_velocity_model(y, &r_ia, &omega));
             check("gnss velocity", &lin.h, &num);
+        }
+    }
+
+    #[test]
+    fn body_velocity_jacobian_is_numeric_derivative() {
+        let mut rng = ChaCha8Rng::seed_from_u64(17);
+        for _ in 0..50 {
+            let x = random_state(&mut rng);
+            let omega = v3(&mut rng, 2.0);
+            let imu_from_o = nalgebra::Isometry3::new(v3(&mut rng, 1.0), v3(&mut rng, 1.0));
+            // Independent: the velocity of o's origin, w = v + R(ω × r), seen in o.
+            let world_from_o = x.world_from_imu() * imu_from_o;
+            let w = x.v + x.q * omega.cross(&imu_from_o.translation.vector);
+            let direct = world_from_o.rotation.inverse() * w;
+            assert!((body_velocity_model(&x, &imu_from_o, &omega) - direct).norm() < 1e-12);
+            let lin = body_velocity(&x, &imu_from_o, &omega, &Vector3::zeros());
+            let num = numeric(&x, |y| body_velocity_model(y, &imu_from_o, &omega));
+            check("body velocity", &lin.h, &num);
         }
     }
 

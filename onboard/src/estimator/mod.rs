@@ -8,8 +8,10 @@
 //! The stage the runner calls is [`EstimatorSet`]: messages in arrival order go in
 //! ([`EstimatorSet::push`]); each is validated, re-ordered by stamp ([`reorder`]) and fanned
 //! out to the estimators of `[estimators] run`: the EIF ([`eif`]) and the single-source
-//! trajectories of the seed paper's Table 1 ([`single_source`]).
+//! trajectories of the seed paper's Table 1 ([`single_source`]), and wheel dead reckoning
+//! ([`dead_reckoning`]).
 
+pub mod dead_reckoning;
 pub mod eif;
 pub mod ins;
 mod linear;
@@ -21,6 +23,7 @@ pub mod single_source;
 pub mod so3;
 mod synthetic;
 
+pub use dead_reckoning::DeadReckoning;
 pub use eif::Eif;
 pub use params::{EifParams, EstimatorKind, EstimatorsParams, ImuSampleModel, OrientationYaw};
 pub use set::{EstimationOutput, EstimatorOutput, EstimatorSet, SensorFrames, StageStats};

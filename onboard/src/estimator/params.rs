@@ -13,15 +13,18 @@ pub enum EstimatorKind {
     Gnss,
     /// Tracking-camera pose mapped into the world (eq. 2).
     TrackingCamera,
+    /// Wheel odometry with the IMU's heading, integrated (no GNSS after the start).
+    DeadReckoning,
 }
 
 impl EstimatorKind {
-    /// The source name (`eif`, `gnss`, `tracking_camera`).
+    /// The source name (`eif`, `gnss`, `tracking_camera`, `dead_reckoning`).
     pub fn name(self) -> &'static str {
         match self {
             EstimatorKind::Eif => "eif",
             EstimatorKind::Gnss => "gnss",
             EstimatorKind::TrackingCamera => "tracking_camera",
+            EstimatorKind::DeadReckoning => "dead_reckoning",
         }
     }
 }
@@ -109,6 +112,22 @@ pub struct EifParams {
     pub course_min_baseline_m: f64,
     /// Noise floor of a course-over-ground heading, degrees.
     pub course_sigma_floor_deg: f64,
+    /// Use the wheel odometry's body-frame velocity (with the non-holonomic constraint).
+    pub use_wheel_odometry: bool,
+    /// Wheel speed white noise (1σ), m/s.
+    pub wheel_speed_sigma_mps: f64,
+    /// Unknown wheel slip as a fraction of speed (1σ).
+    pub wheel_slip_fraction: f64,
+    /// Lateral velocity allowed by the non-holonomic constraint (1σ), m/s.
+    pub wheel_lateral_sigma_mps: f64,
+    /// Vertical velocity allowed by the non-holonomic constraint (1σ), m/s.
+    pub wheel_vertical_sigma_mps: f64,
+    /// Slip gate on the wheel velocity innovation (squared Mahalanobis, 3 dof; 0 = none).
+    pub wheel_gate_chi2: f64,
+    /// Correlation time the filter assumes for wheel slip errors, s (0 = white).
+    pub wheel_correlation_time_s: f64,
+    /// Forgetting length of the online wheel scale calibration, m (0 = off).
+    pub wheel_calibration_length_m: f64,
 }
 
 impl Default for EstimatorsParams {

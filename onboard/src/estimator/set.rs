@@ -1,5 +1,6 @@
 //! The estimation stage: validation → re-ordering → fan-out to the estimators.
 
+use super::dead_reckoning::DeadReckoning;
 use super::eif::Eif;
 use super::params::{EstimatorKind, EstimatorsParams};
 use super::reorder::ReorderBuffer;
@@ -97,6 +98,7 @@ enum AnyEstimator {
     Eif(Box<Eif>),
     Gnss(Box<GnssOnly>),
     TrackingCamera(Box<TrackingCameraOnly>),
+    DeadReckoning(Box<DeadReckoning>),
 }
 
 impl AnyEstimator {
@@ -105,6 +107,7 @@ impl AnyEstimator {
             AnyEstimator::Eif(e) => e.as_mut(),
             AnyEstimator::Gnss(e) => e.as_mut(),
             AnyEstimator::TrackingCamera(e) => e.as_mut(),
+            AnyEstimator::DeadReckoning(e) => e.as_mut(),
         }
     }
     fn handle(&mut self, msg: &Message) {
@@ -112,6 +115,7 @@ impl AnyEstimator {
             AnyEstimator::Eif(e) => e.handle(msg),
             AnyEstimator::Gnss(e) => e.handle(msg),
             AnyEstimator::TrackingCamera(e) => e.handle(msg),
+            AnyEstimator::DeadReckoning(e) => e.handle(msg),
         }
     }
     fn into_output(mut self) -> EstimatorOutput {
@@ -123,6 +127,7 @@ impl AnyEstimator {
             AnyEstimator::Eif(e) => e.into_trajectory(),
             AnyEstimator::Gnss(e) => e.into_trajectory(),
             AnyEstimator::TrackingCamera(e) => e.into_trajectory(),
+            AnyEstimator::DeadReckoning(e) => e.into_trajectory(),
         };
         EstimatorOutput {
             name,
@@ -194,6 +199,9 @@ impl EstimatorSet {
                 EstimatorKind::TrackingCamera => {
                     AnyEstimator::TrackingCamera(Box::new(TrackingCameraOnly::new(t, enu.clone())?))
                 }
+                EstimatorKind::DeadReckoning => {
+                    AnyEstimator::DeadReckoning(Box::new(DeadReckoning::new(t, enu.clone())?))
+                }
             });
         }
         Ok(EstimatorSet {
@@ -217,6 +225,7 @@ impl EstimatorSet {
                 EstimatorKind::Eif => self.eif_uses_tracking,
                 EstimatorKind::Gnss => false,
                 EstimatorKind::TrackingCamera => true,
+                EstimatorKind::DeadReckoning => false,
             };
             let needed = [
                 Some(frames.imu),
@@ -281,6 +290,7 @@ impl EstimatorSet {
             AnyEstimator::Eif(e) => e.trajectory(),
             AnyEstimator::Gnss(e) => e.trajectory(),
             AnyEstimator::TrackingCamera(e) => e.trajectory(),
+            AnyEstimator::DeadReckoning(e) => e.trajectory(),
         })
     }
 
@@ -293,6 +303,7 @@ impl EstimatorSet {
                 AnyEstimator::Eif(e) => e.name(),
                 AnyEstimator::Gnss(e) => e.name(),
                 AnyEstimator::TrackingCamera(e) => e.name(),
+                AnyEstimator::DeadReckoning(e) => e.name(),
             })
             .collect()
     }
@@ -308,6 +319,7 @@ impl EstimatorSet {
                 AnyEstimator::Eif(e) => e.trajectory_mut(),
                 AnyEstimator::Gnss(e) => e.trajectory_mut(),
                 AnyEstimator::TrackingCamera(e) => e.trajectory_mut(),
+                AnyEstimator::DeadReckoning(e) => e.trajectory_mut(),
             };
             for s in t.drain_settled() {
                 sink(i, s);

@@ -33,7 +33,7 @@ struct Ahrs {
 /// Eq. (1) with AHRS orientation, shared by both sources: turns valid fixes into body
 /// poses once the AHRS orientation at the fix stamp is known.
 #[derive(Clone, Debug)]
-struct GnssAhrsPoser {
+pub(super) struct GnssAhrsPoser {
     transforms: StaticTransforms,
     enu: LocalEnu,
     /// The IMU frame and `imu_from_body`.
@@ -44,7 +44,7 @@ struct GnssAhrsPoser {
 }
 
 impl GnssAhrsPoser {
-    fn new(transforms: StaticTransforms, enu: LocalEnu) -> GnssAhrsPoser {
+    pub(super) fn new(transforms: StaticTransforms, enu: LocalEnu) -> GnssAhrsPoser {
         GnssAhrsPoser {
             transforms,
             enu,
@@ -56,7 +56,12 @@ impl GnssAhrsPoser {
     }
 
     /// Feeds one message; appends body poses (and counts) as fixes become computable.
-    fn handle(&mut self, msg: &Message, stats: &mut EstimatorStats, out: &mut Vec<PoseSample>) {
+    pub(super) fn handle(
+        &mut self,
+        msg: &Message,
+        stats: &mut EstimatorStats,
+        out: &mut Vec<PoseSample>,
+    ) {
         match msg {
             Message::Imu(m) => {
                 let Some(q) = m.orientation else {
