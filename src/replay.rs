@@ -95,6 +95,10 @@ pub struct TopicMap {
     pub cameras: Vec<String>,
     /// `tf2_msgs/TFMessage` with the static transforms (default `/tf_static`).
     pub tf_static: Option<String>,
+    /// `tf2_msgs/TFMessage` with the moving transforms (default `/tf`): ROS 1 robots
+    /// often publish their extrinsics here, over and over; a transform that never
+    /// changes in the recording is taken as static (and listed in the report).
+    pub tf: Option<String>,
     /// `nav_msgs/Odometry` of the body in `world` to score against (default
     /// `/ground_truth/odom` when the recording has it).
     pub ground_truth: Option<String>,
@@ -110,6 +114,19 @@ impl ReplayReport {
     /// its first [`NOTES_LISTED`] notes. For the console and `report.md`.
     pub fn estimator_notes(&self) -> Vec<String> {
         let mut out = Vec::new();
+        if !self.tf_as_static.is_empty() {
+            let pairs: Vec<&str> = self
+                .tf_as_static
+                .iter()
+                .map(|t| t.split(" (").next().unwrap_or(t))
+                .collect();
+            out.push(format!(
+                "{} static transform(s) taken from repeats that never changed (no /tf_static \
+                 for them; report.json lists the counts): {}",
+                pairs.len(),
+                pairs.join(", ")
+            ));
+        }
         if self.late_dropped > 0 {
             out.push(format!(
                 "{} message(s) dropped: later than the re-ordering window",
@@ -585,6 +602,9 @@ pub struct ReplayReport {
     pub invalid_dropped: BTreeMap<String, u64>,
     /// Notes of the estimation stage (unknown frames).
     pub stage_notes: Vec<String>,
+    /// Transforms taken as static because `/tf` repeated them unchanged (a ROS 1 robot
+    /// without `/tf_static`), one line each.
+    pub tf_as_static: Vec<String>,
     /// Ground-truth poses (0 without `/ground_truth/odom`).
     pub ground_truth_poses: usize,
     /// Closed-loop metrics of the ground truth itself.
@@ -623,6 +643,7 @@ enum Role {
     WheelOdom,
     Camera,
     TfStatic,
+    Tf,
     GroundTruth,
 }
 
@@ -634,7 +655,7 @@ impl Role {
             Role::GnssVelocity => &["geometry_msgs/TwistWithCovarianceStamped"],
             Role::TrackingOdom | Role::WheelOdom | Role::GroundTruth => &["nav_msgs/Odometry"],
             Role::Camera => &["sensor_msgs/Image", "sensor_msgs/CameraInfo"],
-            Role::TfStatic => &["tf2_msgs/TFMessage"],
+            Role::TfStatic | Role::Tf => &["tf2_msgs/TFMessage"],
         }
     }
     fn key(self) -> &'static str {
@@ -646,6 +667,7 @@ impl Role {
             Role::WheelOdom => "topics.wheel_odom",
             Role::Camera => "topics.cameras",
             Role::TfStatic => "topics.tf_static",
+            Role::Tf => "topics.tf",
             Role::GroundTruth => "topics.ground_truth",
         }
     }
@@ -671,6 +693,8 @@ enum Decoded {
 struct Collected {
     /// Transforms (first scan).
     entries: Vec<Decoded>,
+    /// What `/tf` holds, per parent → child (first scan).
+    repeated_tf: RepeatedTf,
     /// Ground truth (first scan), on its way to disk.
     truth: TruthSpool,
     /// The first GNSS fix with a position (first scan): the default map origin.
@@ -681,6 +705,54 @@ struct Collected {
     skipped: BTreeMap<String, u64>,
     decode_errors: BTreeMap<String, (u64, String)>,
     wrong_type: Vec<String>,
+}
+
+/// Most distinct parent → child pairs [`RepeatedTf`] follows (a tf tree has tens).
+pub const MAX_TF_PAIRS: usize = 4096;
+
+/// The transforms of `/tf`, per parent → child: the first one, how often it came and
+/// whether it ever changed (by more than 1 µm or 1 µrad). Memory grows with the number of
+/// distinct pairs only (at most [`MAX_TF_PAIRS`]).
+#[derive(Default)]
+struct RepeatedTf {
+    pairs: BTreeMap<(String, String), (TransformStamped, u64, bool)>,
+    /// Pairs beyond [`MAX_TF_PAIRS`], not followed.
+    overflow: u64,
+}
+
+impl RepeatedTf {
+    fn observe(&mut self, ts: Vec<TransformStamped>) {
+        for t in ts {
+            let key = (
+                bare_frame(t.parent.as_str()).to_string(),
+                bare_frame(t.child.as_str()).to_string(),
+            );
+            match self.pairs.get_mut(&key) {
+                Some((first, n, changed)) => {
+                    *n += 1;
+                    let d = first.parent_from_child.inverse() * t.parent_from_child;
+                    if d.translation.vector.norm() > 1e-6 || d.rotation.angle() > 1e-6 {
+                        *changed = true;
+                    }
+                }
+                None => {
+                    if self.pairs.len() < MAX_TF_PAIRS {
+                        self.pairs.insert(key, (t, 1, false));
+                    } else {
+                        self.overflow += 1;
+                    }
+                }
+            }
+        }
+    }
+
+    /// The transforms that came at least twice and never changed.
+    fn unchanging(&self) -> impl Iterator<Item = (&TransformStamped, u64)> {
+        self.pairs
+            .values()
+            .filter(|(_, n, changed)| *n >= 2 && !changed)
+            .map(|(t, n, _)| (t, *n))
+    }
 }
 
 /// A recording's ground truth on its way to a spool (in the system's temporary folder:
@@ -810,6 +882,20 @@ fn collect(
         bump(&mut out.skipped, &key);
         return None;
     }
+    if role == Role::Tf {
+        if scan == Scan::Index {
+            match ros::decode_tf(m.data) {
+                Ok(ts) => out.repeated_tf.observe(ts),
+                Err(e) => {
+                    out.decode_errors
+                        .entry(ch.topic.clone())
+                        .or_insert_with(|| (0, format!("{ty} #{}: {e}", m.sequence)))
+                        .0 += 1;
+                }
+            }
+        }
+        return None;
+    }
     let is_sensor = !matches!(role, Role::GroundTruth | Role::TfStatic);
     match scan {
         Scan::Index if is_sensor => {
@@ -857,6 +943,7 @@ fn collect(
             })
         }),
         Role::TfStatic => ros::decode_tf(m.data).map(Decoded::Tf),
+        Role::Tf => return None,
         Role::Camera => {
             let topic = camera_topics
                 .entry(ch.topic.clone())
@@ -1206,6 +1293,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         .filter_map(|(topic, role)| Some((*role, topic.as_ref()?)))
         .chain(t.cameras.iter().map(|c| (Role::Camera, c)))
         .chain(t.tf_static.iter().map(|x| (Role::TfStatic, x)))
+        .chain(t.tf.iter().map(|x| (Role::Tf, x)))
         .chain(t.ground_truth.iter().map(|x| (Role::GroundTruth, x)))
         .collect();
     for (role, topic) in &explicit {
@@ -1230,6 +1318,12 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
     roles
         .entry(tf_static_topic.clone())
         .or_insert(Role::TfStatic);
+    // `/tf`, where the mapping did not use it: scanned for transforms that never change.
+    // (A vinebench recording has `/tf_static`; its `/tf` holds the recorded estimates.)
+    let tf_topic = t.tf.clone().unwrap_or_else(|| topics::TF.to_string());
+    if user_cfg.is_some() {
+        roles.entry(tf_topic.clone()).or_insert(Role::Tf);
+    }
     let truth_topic = t
         .ground_truth
         .clone()
@@ -1427,11 +1521,35 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             Decoded::Truth(_) | Decoded::Sensor(_) => {}
         }
     }
+    // Transforms that `/tf` repeated unchanged, for frames the mapping and `/tf_static`
+    // do not place.
+    let mut tf_as_static = Vec::new();
+    for (t, n) in got.repeated_tf.unchanging() {
+        let mut t = t.clone();
+        rename(&cfg.frames, &mut t.parent);
+        rename(&cfg.frames, &mut t.child);
+        if tf.iter().any(|x| x.child == t.child) {
+            continue;
+        }
+        tf_as_static.push(format!(
+            "{} → {} ({n} messages on {tf_topic}, never changed)",
+            t.parent.as_str(),
+            t.child.as_str()
+        ));
+        tf.push(t);
+    }
+    if got.repeated_tf.overflow > 0 {
+        tf_as_static.push(format!(
+            "{} transform(s) on {tf_topic} beyond {MAX_TF_PAIRS} frame pairs not examined",
+            got.repeated_tf.overflow
+        ));
+    }
     if tf.is_empty() {
         return Err(ReplayError::Input {
             file: file_name,
             problem: format!(
-                "no static transforms on {tf_static_topic:?} and no `[[static_transforms]]` in \
+                "no static transforms on {tf_static_topic:?} (nor unchanging ones on \
+                 {tf_topic:?}) and no `[[static_transforms]]` in \
                  a mapping file: the estimators need body_from_<sensor frame> for every sensor \
                  (its topics: {topic_list}){because}"
             ),
@@ -1831,6 +1949,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             .map(|(k, n)| (cfg.topics.recorded_key(&k), n))
             .collect(),
         stage_notes: out.stage.notes.clone(),
+        tf_as_static,
         ground_truth_poses: truth.len(),
         ground_truth: metrics::closed_loop(&truth).ok(),
         sources,

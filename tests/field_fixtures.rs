@@ -398,12 +398,135 @@ fn wheel_odometry_carries_the_eif_through_a_gnss_loss() {
         eif.notes
     );
     assert!(path > 5.0, "{path} m driven in the loss");
-    assert!(e_wheel < 2.0 * heading_bound + 0.05, "{e_wheel} vs {heading_bound}");
+    assert!(
+        e_wheel < 2.0 * heading_bound + 0.05,
+        "{e_wheel} vs {heading_bound}"
+    );
     assert!(e_wheel < 0.4 * e_imu, "{e_wheel} vs {e_imu}");
     assert!(
-        eif.notes.iter().any(|n| n.contains("wheel speeds scaled by 0.9")),
+        eif.notes
+            .iter()
+            .any(|n| n.contains("wheel speeds scaled by 0.9")),
         "{:?}",
         eif.notes
     );
     assert!(n_dr > 500 && e_dr < 1.0, "{e_dr} over {n_dr} poses");
+}
+
+#[test]
+fn a_ros1_style_tf_without_tf_static_and_slashed_frames_replays_as_recorded() {
+    let (tmp, recording, reference) = drive();
+    let ate = eif_ate(&reference);
+    // As a ROS 1 robot records it: no /tf_static; robot_state_publisher repeats the
+    // extrinsics on /tf (10 Hz) beside a moving odom → base_link, and every frame name
+    // has tf's leading slash.
+    let slash =
+        |f: &vinebench_msgs::FrameId| vinebench_msgs::FrameId::new(&format!("/{}", f.as_str()));
+    let bytes = std::fs::read(&recording).unwrap();
+    let out = tmp.path().join("ros1-style.mcap");
+    let mut w = mcap::Writer::new(std::io::BufWriter::new(
+        std::fs::File::create(&out).unwrap(),
+    ))
+    .unwrap();
+    let mut extrinsics: Vec<ros::TransformStamped> = Vec::new();
+    let mut tf_channel = None;
+    let mut sent = 0u32;
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        let mut data = m.data.to_vec();
+        match m.channel.topic.as_str() {
+            "/tf_static" => {
+                extrinsics = ros::decode_tf(&data).unwrap();
+                tf_channel = Some(std::sync::Arc::new(mcap::Channel {
+                    topic: "/tf".into(),
+                    metadata: Default::default(),
+                    ..(*m.channel).clone()
+                }));
+                continue;
+            }
+            "/tf" => continue,
+            "/imu/data" => {
+                let mut x = ros::decode_imu(&data).unwrap();
+                x.frame_id = slash(&x.frame_id);
+                data.clear();
+                ros::encode_imu(&x, &mut data);
+            }
+            "/gnss/fix" => {
+                let mut x = ros::decode_nav_sat_fix(&data).unwrap();
+                x.frame_id = slash(&x.frame_id);
+                data.clear();
+                ros::encode_nav_sat_fix(&x, &mut data);
+                // The repeated /tf with each fix.
+                let mut ts: Vec<ros::TransformStamped> = extrinsics
+                    .iter()
+                    .map(|t| ros::TransformStamped {
+                        stamp: x.stamp,
+                        parent: slash(&t.parent),
+                        child: slash(&t.child),
+                        parent_from_child: t.parent_from_child,
+                    })
+                    .collect();
+                ts.push(ros::TransformStamped {
+                    stamp: x.stamp,
+                    parent: vinebench_msgs::FrameId::new("/odom"),
+                    child: vinebench_msgs::FrameId::new("/base_link"),
+                    parent_from_child: nalgebra::Isometry3::translation(
+                        0.1 * sent as f64,
+                        0.0,
+                        0.0,
+                    ),
+                });
+                sent += 1;
+                let mut tf = Vec::new();
+                ros::encode_tf(&ts, &mut tf);
+                w.write(&mcap::Message {
+                    channel: tf_channel.clone().unwrap(),
+                    sequence: sent,
+                    data: Cow::Owned(tf),
+                    ..m.clone()
+                })
+                .unwrap();
+            }
+            "/gnss/fix_velocity" => {
+                let mut x = ros::decode_gnss_velocity(&data).unwrap();
+                x.frame_id = slash(&x.frame_id);
+                data.clear();
+                ros::encode_gnss_velocity(&x, &mut data);
+            }
+            _ => {}
+        }
+        w.write(&mcap::Message {
+            data: Cow::Owned(data),
+            ..m
+        })
+        .unwrap();
+    }
+    w.finish().unwrap();
+    assert!(
+        extrinsics.len() >= 2 && sent > 100,
+        "{} extrinsics, {sent} /tf",
+        extrinsics.len()
+    );
+
+    let r = replay_with(&out, TOPICS, &tmp.path().join("ros1-style"));
+    let a = eif_ate(&r);
+    eprintln!(
+        "EIF ATE: recorded /tf_static {ate:.5} m, repeated /tf with slashed frames {a:.5} m; {:?}",
+        r.report.tf_as_static
+    );
+    assert!((a - ate).abs() < 1e-6, "{a} vs {ate}");
+    // Every extrinsic is listed as taken from the repeats; the moving transform is not.
+    assert_eq!(
+        r.report.tf_as_static.len(),
+        extrinsics.len(),
+        "{:?}",
+        r.report.tf_as_static
+    );
+    assert!(r.report.tf_as_static.iter().all(|t| !t.contains("odom")));
+    assert!(
+        r.report
+            .estimator_notes()
+            .iter()
+            .any(|n| n.contains("static transform(s) taken from repeats")),
+    );
 }
