@@ -262,6 +262,9 @@ pub struct ImuConventions {
     /// and pitch are used, the heading comes from the GNSS course): sets
     /// `[estimators.eif] orientation_yaw`.
     pub yaw: Option<vinebench_onboard::estimator::OrientationYaw>,
+    /// The IMU's noise profile by datasheet (`"mti-300"`, `"bno055"`, `"mpu-9250"`, ...,
+    /// listed in `scenarios/defaults.toml`): sets `[estimators.eif] imu_profile`.
+    pub profile: Option<String>,
 }
 
 impl ImuConventions {
@@ -1132,6 +1135,37 @@ fn rename_message(frames: &BTreeMap<String, String>, m: &mut Message) {
     }
 }
 
+/// Sets `[estimators.eif] key = value` for the mapping file's `from` key, refusing a
+/// different value given there too.
+fn set_eif(
+    estimators: &mut toml::Table,
+    key: &str,
+    value: toml::Value,
+    from: &str,
+    file: &str,
+) -> Result<(), ReplayError> {
+    let eif = estimators
+        .entry("eif")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if let toml::Value::Table(eif) = eif {
+        match eif.get(key) {
+            Some(v) if *v != value => {
+                return Err(ReplayError::Input {
+                    file: file.to_string(),
+                    problem: format!(
+                        "`{from}` = {value} and `estimators.eif.{key}` = {v} disagree: give one \
+                         of them"
+                    ),
+                });
+            }
+            _ => {
+                eif.insert(key.into(), value);
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The scenario a mapping file implies: its `[estimators]`, `[scoring]`, `expect` and
 /// origin over the defaults.
 fn scenario_of_config(
@@ -1153,25 +1187,11 @@ fn scenario_of_config(
             file: file.to_string(),
             problem: format!("imu.yaw: {e}"),
         })?;
-        let eif = estimators
-            .entry("eif")
-            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-        if let toml::Value::Table(eif) = eif {
-            match eif.get("orientation_yaw") {
-                Some(v) if *v != value => {
-                    return Err(ReplayError::Input {
-                        file: file.to_string(),
-                        problem: format!(
-                            "`imu.yaw` = {value} and `estimators.eif.orientation_yaw` = {v} \
-                             disagree: give one of them"
-                        ),
-                    });
-                }
-                _ => {
-                    eif.insert("orientation_yaw".into(), value);
-                }
-            }
-        }
+        set_eif(&mut estimators, "orientation_yaw", value, "imu.yaw", file)?;
+    }
+    if let Some(profile) = &cfg.imu.profile {
+        let value = toml::Value::String(profile.clone());
+        set_eif(&mut estimators, "imu_profile", value, "imu.profile", file)?;
     }
     // What the mapped topics can feed, where the mapping file does not say: wheel
     // odometry into the EIF, and the sources whose input is recorded.

@@ -530,3 +530,121 @@ fn a_ros1_style_tf_without_tf_static_and_slashed_frames_replays_as_recorded() {
             .any(|n| n.contains("static transform(s) taken from repeats")),
     );
 }
+
+/// A seeded standard normal source for the fixtures (SplitMix64 + Box-Muller).
+struct Normal(u64);
+
+impl Normal {
+    fn uniform(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn sample(&mut self) -> f64 {
+        let u1 = self.uniform().max(1e-300);
+        let u2 = self.uniform();
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+    fn vector(&mut self, sigma: f64) -> Vector3<f64> {
+        Vector3::new(self.sample(), self.sample(), self.sample()) * sigma
+    }
+}
+
+#[test]
+fn a_consumer_mems_imu_is_measured_while_standing_and_named_by_its_datasheet() {
+    let (tmp, recording, reference) = drive();
+    let ate = eif_ate(&reference);
+    // The simulated IMU (MTi-300 grade: 0.01 °/s/√Hz, 60 µg/√Hz at 200 Hz) made a
+    // consumer MEMS part: white noise added to reach 0.0224 °/s/√Hz and 296 µg/√Hz.
+    let (add_gyro, add_accel) = (0.02f64, 290.0f64);
+    let rate = 200.0f64;
+    let mut rng = Normal(7);
+    let mems = tmp.path().join("mems.mcap");
+    rewrite(&recording, &mems, |topic, data| {
+        if topic != "/imu/data" {
+            return Some(data.to_vec());
+        }
+        let mut m = ros::decode_imu(data).unwrap();
+        m.angular_velocity += rng.vector(add_gyro.to_radians() * rate.sqrt());
+        m.linear_acceleration += rng.vector(add_accel * 9.806_65e-6 * rate.sqrt());
+        let mut out = Vec::new();
+        ros::encode_imu(&m, &mut out);
+        Some(out)
+    });
+    let (want_gyro, want_accel) = (0.01f64.hypot(add_gyro), 60f64.hypot(add_accel));
+    let measured = |r: &ReplayOutcome| -> (f64, f64) {
+        let note = r.report.sources[0]
+            .notes
+            .iter()
+            .find(|n| n.starts_with("IMU noise measured"))
+            .unwrap_or_else(|| panic!("{:?}", r.report.sources[0].notes));
+        let num = |after: &str| -> f64 {
+            let rest = &note[note.find(after).unwrap() + after.len()..];
+            rest.split_whitespace().next().unwrap().parse().unwrap()
+        };
+        (num("gyro "), num("accel "))
+    };
+    let warned = |r: &ReplayOutcome| {
+        r.report.sources[0]
+            .notes
+            .iter()
+            .any(|n| n.starts_with("warning: the IMU is noisier"))
+    };
+
+    // With the default (MTi-300) model the filter measures the noise and warns.
+    let default = replay_with(&mems, TOPICS, &tmp.path().join("mems-default"));
+    let (g, a) = measured(&default);
+    assert!(
+        (g / want_gyro - 1.0).abs() < 0.15,
+        "gyro {g} vs {want_gyro}"
+    );
+    assert!(
+        (a / want_accel - 1.0).abs() < 0.15,
+        "accel {a} vs {want_accel}"
+    );
+    assert!(warned(&default), "{:?}", default.report.sources[0].notes);
+    assert!(
+        default
+            .report
+            .estimator_notes()
+            .iter()
+            .any(|n| n.contains("mpu-9250"))
+    );
+    // Named by its datasheet in the mapping file: no warning, and the estimate holds.
+    let named = format!("{TOPICS}[imu]\nprofile = \"mpu-9250\"\n");
+    let r = replay_with(&mems, &named, &tmp.path().join("mems-mpu"));
+    assert!(!warned(&r), "{:?}", r.report.sources[0].notes);
+    let a_named = eif_ate(&r);
+    let a_default = eif_ate(&default);
+    eprintln!(
+        "MEMS IMU: measured standing gyro {g:.4} °/s/√Hz (true {want_gyro:.4}), accel {a:.0} \
+         µg/√Hz (true {want_accel:.0}); EIF ATE {a_default:.4} m with the MTi-300 model, \
+         {a_named:.4} m with \"mpu-9250\", {ate:.4} m on the MTi-300 itself"
+    );
+    assert!(a_named < 2.0 * ate + 0.02, "{a_named} vs {ate}");
+    // The clean recording does not warn.
+    assert!(
+        !warned(&reference),
+        "{:?}",
+        reference.report.sources[0].notes
+    );
+    // An unknown profile is refused by name.
+    let map = tmp.path().join("bad-profile.toml");
+    std::fs::write(&map, format!("{TOPICS}[imu]\nprofile = \"mpu9250\"\n")).unwrap();
+    let e = replay(
+        &mems,
+        &ReplayOptions {
+            config: Some(map),
+            out_dir: Some(tmp.path().join("bad-profile")),
+            ..ReplayOptions::default()
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("imu_profile") && e.contains("\"mpu-9250\""),
+        "{e}"
+    );
+}

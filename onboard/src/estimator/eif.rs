@@ -129,10 +129,186 @@ pub const WHEEL_UNMEASURED_VARIANCE: f64 = 1e3;
 /// velocity uncertainty (1 s at 50 Hz).
 pub const WHEEL_GATE_RECOVERY: u32 = 50;
 
+/// An IMU noise model by datasheet: white noise densities, and the extra process noise
+/// for what the filter's model leaves out (bias drift, vibration) as white densities.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct ImuProfile {
+    /// The `imu_profile` name.
+    pub name: &'static str,
+    /// What the numbers come from.
+    pub grade: &'static str,
+    /// Gyro angle random walk, °/s/√Hz.
+    pub gyro_dps_rthz: f64,
+    /// Extra gyro process noise, °/s/√Hz.
+    pub gyro_extra_dps_rthz: f64,
+    /// Accelerometer velocity random walk, µg/√Hz.
+    pub accel_ug_rthz: f64,
+    /// Extra accelerometer process noise, µg/√Hz.
+    pub accel_extra_ug_rthz: f64,
+}
+
+/// The named IMU profiles (`[estimators.eif] imu_profile`). Noise densities are the
+/// datasheets' typical values. The extra noise is the datasheet's in-run bias instability
+/// taken over 1 s (°/h ÷ 3600 → °/s/√Hz, µg → µg/√Hz) where the datasheet gives it (the
+/// Xsens parts: MTi-300 10 °/h and 15 µg give the defaults' 0.002-0.003 and 20), and for
+/// consumer parts, whose datasheets give none, an assumed class value of 0.02 °/s/√Hz
+/// (70 °/h) and 100-200 µg/√Hz: their bias wanders with temperature by more than any
+/// instability figure says.
+pub const IMU_PROFILES: &[ImuProfile] = &[
+    ImuProfile {
+        name: "mti-300",
+        grade: "Xsens MTi-300 (industrial AHRS; the defaults)",
+        gyro_dps_rthz: 0.01,
+        gyro_extra_dps_rthz: 0.002,
+        accel_ug_rthz: 60.0,
+        accel_extra_ug_rthz: 20.0,
+    },
+    ImuProfile {
+        name: "mti-3",
+        grade: "Xsens MTi-1/2/3 (MEMS module, 10 °/h, 30 µg in-run)",
+        gyro_dps_rthz: 0.007,
+        gyro_extra_dps_rthz: 0.003,
+        accel_ug_rthz: 120.0,
+        accel_extra_ug_rthz: 30.0,
+    },
+    ImuProfile {
+        name: "bmi055",
+        grade: "Bosch BMI055 (consumer MEMS; RealSense D435i/T265)",
+        gyro_dps_rthz: 0.014,
+        gyro_extra_dps_rthz: 0.02,
+        accel_ug_rthz: 150.0,
+        accel_extra_ug_rthz: 100.0,
+    },
+    ImuProfile {
+        name: "bno055",
+        grade: "Bosch BNO055 (consumer MEMS AHRS; BMI055 inside)",
+        gyro_dps_rthz: 0.014,
+        gyro_extra_dps_rthz: 0.02,
+        accel_ug_rthz: 150.0,
+        accel_extra_ug_rthz: 100.0,
+    },
+    ImuProfile {
+        name: "mpu-9250",
+        grade: "InvenSense MPU-9250 (consumer MEMS)",
+        gyro_dps_rthz: 0.01,
+        gyro_extra_dps_rthz: 0.02,
+        accel_ug_rthz: 300.0,
+        accel_extra_ug_rthz: 200.0,
+    },
+    ImuProfile {
+        name: "icm-20948",
+        grade: "TDK InvenSense ICM-20948 (consumer MEMS)",
+        gyro_dps_rthz: 0.015,
+        gyro_extra_dps_rthz: 0.02,
+        accel_ug_rthz: 230.0,
+        accel_extra_ug_rthz: 200.0,
+    },
+];
+
+impl ImuProfile {
+    /// The profile named `name`.
+    pub fn find(name: &str) -> Option<&'static ImuProfile> {
+        IMU_PROFILES.iter().find(|p| p.name == name)
+    }
+}
+
+/// Measured IMU noise factor (against the profile's density) above which the filter
+/// warns: its process noise is then too small and its covariance over-confident.
+pub const IMU_NOISE_WARN_FACTOR: f64 = 3.0;
+/// Length of one still window of [`StillMeter`].
+const STILL_WINDOW: Nanos = Nanos::from_secs(1);
+/// The robot counts as still while the filter's speed stays below this, m/s.
+const STILL_SPEED_MPS: f64 = 0.05;
+/// ... and the window's mean angular rate below this, rad/s.
+const STILL_RATE_RADPS: f64 = 0.02;
+
+/// The IMU's white noise measured from the samples of still stretches: per 1 s window
+/// with the robot standing (filter speed below [`STILL_SPEED_MPS`] throughout, mean rate
+/// below [`STILL_RATE_RADPS`]), the per-axis sample variance about the window's mean (so
+/// gravity, earth rate and bias drop out), pooled over windows. The density is
+/// `σ·√dt` (an IMU's white noise of density `N` has `σ = N·√rate` per sample).
+#[derive(Clone, Debug, Default)]
+struct StillMeter {
+    start: Option<Nanos>,
+    moved: bool,
+    n: f64,
+    dt_sum: f64,
+    last_t: Option<Nanos>,
+    w_sum: Vector3<f64>,
+    w_sq: Vector3<f64>,
+    a_sum: Vector3<f64>,
+    a_sq: Vector3<f64>,
+    /// Pooled over still windows: Σ(n−1)·var per axis, Σ(n−1), Σdt, samples.
+    w_pooled: Vector3<f64>,
+    a_pooled: Vector3<f64>,
+    dof: f64,
+    dt_pooled: f64,
+    samples: f64,
+    windows: u32,
+}
+
+impl StillMeter {
+    fn push(&mut self, t: Nanos, w: &Vector3<f64>, a: &Vector3<f64>, speed: f64) {
+        let start = *self.start.get_or_insert(t);
+        if let Some(l) = self.last_t
+            && t > l
+        {
+            self.dt_sum += (t - l).as_secs_f64();
+        }
+        self.last_t = Some(t);
+        self.moved |= speed > STILL_SPEED_MPS;
+        self.n += 1.0;
+        self.w_sum += w;
+        self.w_sq += w.component_mul(w);
+        self.a_sum += a;
+        self.a_sq += a.component_mul(a);
+        if t - start < STILL_WINDOW {
+            return;
+        }
+        let n = self.n;
+        if !self.moved && n >= 10.0 && (self.w_sum / n).norm() < STILL_RATE_RADPS {
+            let var = |sum: &Vector3<f64>, sq: &Vector3<f64>| {
+                (sq - sum.component_mul(sum) / n).map(|v| v.max(0.0))
+            };
+            self.w_pooled += var(&self.w_sum, &self.w_sq);
+            self.a_pooled += var(&self.a_sum, &self.a_sq);
+            self.dof += n - 1.0;
+            self.dt_pooled += self.dt_sum;
+            self.samples += n - 1.0;
+            self.windows += 1;
+        }
+        *self = StillMeter {
+            w_pooled: self.w_pooled,
+            a_pooled: self.a_pooled,
+            dof: self.dof,
+            dt_pooled: self.dt_pooled,
+            samples: self.samples,
+            windows: self.windows,
+            ..StillMeter::default()
+        };
+    }
+
+    /// Measured (gyro °/s/√Hz, accel µg/√Hz), RMS over the axes, after at least two
+    /// still windows.
+    fn densities(&self) -> Option<(f64, f64)> {
+        if self.windows < 2 || self.dof <= 0.0 || self.samples <= 0.0 {
+            return None;
+        }
+        let dt = self.dt_pooled / self.samples;
+        let rms = |v: &Vector3<f64>| (v.sum() / (3.0 * self.dof)).sqrt();
+        Some((
+            rms(&self.w_pooled).to_degrees() * dt.sqrt(),
+            rms(&self.a_pooled) * dt.sqrt() / (1e-6 * super::ins::STANDARD_GRAVITY),
+        ))
+    }
+}
+
 /// The EIF's parameters in SI units.
 #[derive(Clone, Debug, PartialEq)]
 struct Config {
     noise: ProcessNoise,
+    /// The IMU noise model in datasheet units (named profile or the densities given).
+    imu: ImuProfile,
     gravity: f64,
     use_gnss_position: bool,
     use_gnss_velocity: bool,
@@ -190,13 +366,51 @@ impl Config {
             }
         };
         let rate = positive("output_rate_hz", p.output_rate_hz)?;
+        let imu = if p.imu_profile.is_empty() {
+            ImuProfile {
+                name: "",
+                grade: "",
+                gyro_dps_rthz: nonneg(
+                    "gyro_noise_density_dps_rthz",
+                    p.gyro_noise_density_dps_rthz,
+                )?,
+                gyro_extra_dps_rthz: nonneg(
+                    "gyro_extra_noise_dps_rthz",
+                    p.gyro_extra_noise_dps_rthz,
+                )?,
+                accel_ug_rthz: nonneg(
+                    "accel_noise_density_ug_rthz",
+                    p.accel_noise_density_ug_rthz,
+                )?,
+                accel_extra_ug_rthz: nonneg(
+                    "accel_extra_noise_ug_rthz",
+                    p.accel_extra_noise_ug_rthz,
+                )?,
+            }
+        } else {
+            *ImuProfile::find(&p.imu_profile).ok_or_else(|| {
+                EstimatorError::invalid(
+                    "estimators.eif.imu_profile",
+                    &format!(
+                        "\"\" (the densities given) or one of {}",
+                        IMU_PROFILES
+                            .iter()
+                            .map(|x| format!("\"{}\"", x.name))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                    format!("{:?}", p.imu_profile),
+                )
+            })?
+        };
         Ok(Config {
             noise: ProcessNoise::from_datasheet(
-                nonneg("gyro_noise_density_dps_rthz", p.gyro_noise_density_dps_rthz)?,
-                nonneg("gyro_extra_noise_dps_rthz", p.gyro_extra_noise_dps_rthz)?,
-                nonneg("accel_noise_density_ug_rthz", p.accel_noise_density_ug_rthz)?,
-                nonneg("accel_extra_noise_ug_rthz", p.accel_extra_noise_ug_rthz)?,
+                imu.gyro_dps_rthz,
+                imu.gyro_extra_dps_rthz,
+                imu.accel_ug_rthz,
+                imu.accel_extra_ug_rthz,
             ),
+            imu,
             gravity: nonneg("gravity_mps2", p.gravity_mps2)?,
             use_gnss_position: p.use_gnss_position,
             use_gnss_velocity: p.use_gnss_velocity,
@@ -482,6 +696,8 @@ pub struct Eif {
     frame_cache: Vec<(FrameId, Isometry3<f64>)>,
     pre: PreInit,
     course: CourseTracker,
+    /// The IMU's noise measured while standing.
+    still: StillMeter,
     filter: Option<Filter>,
     pending: VecDeque<(Nanos, Pending)>,
     group: Vec<Pending>,
@@ -570,6 +786,7 @@ impl Eif {
             frame_cache: Vec::new(),
             pre: PreInit::default(),
             course: CourseTracker::default(),
+            still: StillMeter::default(),
             filter: None,
             pending: VecDeque::new(),
             group: Vec::new(),
@@ -1162,6 +1379,8 @@ impl Eif {
             return;
         };
         propagate_to(f, sample.t, &interval, &noise);
+        self.still
+            .push(sample.t, &sample.w, &sample.f, f.core.nav.v.norm());
         if self.cfg.relative_yaw {
             self.course.on_imu(sample.t, &sample.w, &f.core.nav.q);
         }
@@ -1465,6 +1684,37 @@ impl Estimator for Eif {
         self.settle();
         while self.pending.pop_front().is_some() {
             self.stats.count_rejected("after_last_imu");
+        }
+        if let Some((g, a)) = self.still.densities() {
+            let p = &self.cfg.imu;
+            let profile = if p.name.is_empty() {
+                "the densities given".to_string()
+            } else {
+                format!("imu_profile \"{}\"", p.name)
+            };
+            self.stats.notes.push(format!(
+                "IMU noise measured over {} s standing still: gyro {g:.4} °/s/√Hz, accel \
+                 {a:.0} µg/√Hz ({profile}: {} °/s/√Hz, {} µg/√Hz)",
+                self.still.windows, p.gyro_dps_rthz, p.accel_ug_rthz
+            ));
+            let far = |measured: f64, model: f64| measured > IMU_NOISE_WARN_FACTOR * model;
+            if far(g, p.gyro_dps_rthz) || far(a, p.accel_ug_rthz) {
+                let suggest: Vec<&str> = IMU_PROFILES
+                    .iter()
+                    .filter(|x| !far(g, x.gyro_dps_rthz) && !far(a, x.accel_ug_rthz))
+                    .map(|x| x.name)
+                    .collect();
+                self.stats.notes.push(format!(
+                    "warning: the IMU is noisier than {profile} by more than {}× (the filter is \
+                     over-confident): set [estimators.eif] imu_profile to the IMU's datasheet{}",
+                    IMU_NOISE_WARN_FACTOR,
+                    if suggest.is_empty() {
+                        " or its measured densities".to_string()
+                    } else {
+                        format!(" (these fit the measurement: {})", suggest.join(", "))
+                    }
+                ));
+            }
         }
         if let Some(f) = &self.filter
             && f.wheel_scale.ready

@@ -76,6 +76,9 @@ pub struct EifParams {
     pub use_imu_orientation: bool,
     /// Use the tracking camera's relative pose.
     pub use_tracking_camera: bool,
+    /// A named IMU noise profile (`mti-300`, `mti-3`, `bmi055`, `bno055`, `mpu-9250`,
+    /// `icm-20948`) that replaces the four densities; empty = the densities given.
+    pub imu_profile: String,
     /// Gyro white noise density, °/s/√Hz.
     pub gyro_noise_density_dps_rthz: f64,
     /// Accelerometer white noise density, µg/√Hz.
