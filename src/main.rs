@@ -504,8 +504,21 @@ fn dispatch(cmd: Command) -> Result<u8> {
                     .as_ref()
                     .and_then(|x| x.metric("ate_rmse_m"))
                     .map(|v| format!("ATE {v:.3} m"))
+                    .or_else(|| {
+                        s.vs_gnss.as_ref().map(|g| {
+                            format!(
+                                "to the GNSS track: horizontal RMS {:.3} m, p95 {:.3} m",
+                                g.horizontal_rmse_m, g.horizontal_p95_m
+                            )
+                        })
+                    })
                     .unwrap_or_else(|| "no ground truth".into());
                 outln!("{:<16} {:>7} poses  {ate}", s.name, s.poses);
+                if s.score.is_none()
+                    && let Some(nis) = &s.gnss_nis
+                {
+                    outln!("  {}", nis.verdict());
+                }
             }
             for n in r.estimator_notes() {
                 outln!("  note: {n}");

@@ -573,6 +573,153 @@ pub struct ReplaySource {
     /// correctness; see `crate::scoring::expect::SLAM_METRICS`); empty for other sources.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub slam: BTreeMap<String, f64>,
+    /// Without ground truth: the source against the GNSS track (the `gnss` source).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vs_gnss: Option<GnssResiduals>,
+    /// The filter's GNSS position NIS against its chi-square band (EIF).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gnss_nis: Option<NisSummary>,
+}
+
+/// A source against the GNSS track (`gnss`: eq. (1) per fix) in a recording without
+/// ground truth: the residual between the GNSS pose and the source's pose interpolated at
+/// the fix's stamp. With RTK fixes it bounds the source's error by the fixes' own
+/// centimetres; with single fixes it is mostly the receiver's metres.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GnssResiduals {
+    /// GNSS poses compared (the source has poses within [`RESIDUAL_MAX_GAP`] around them).
+    pub n: usize,
+    /// Horizontal residual: RMS, median, 95th percentile and largest, m.
+    pub horizontal_rmse_m: f64,
+    /// See `horizontal_rmse_m`.
+    pub horizontal_median_m: f64,
+    /// See `horizontal_rmse_m`.
+    pub horizontal_p95_m: f64,
+    /// See `horizontal_rmse_m`.
+    pub horizontal_max_m: f64,
+    /// Vertical residual RMS, m.
+    pub vertical_rmse_m: f64,
+}
+
+/// The normalized innovation squared of a filter's GNSS position fixes: a consistency
+/// check that needs no ground truth. For a consistent filter fed independent fixes its
+/// mean is `dof` and 95 % of the values fall inside `band`; a mean far above says the
+/// filter (or the receiver's covariance) is over-confident, the failure that matters. Far
+/// below is what correlated receiver errors give (consecutive RTK fixes wander together
+/// and the filter follows them, so each new fix agrees with it better than its σ says) or
+/// a pessimistic covariance.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct NisSummary {
+    /// Degrees of freedom (3: east, north, up).
+    pub dof: u32,
+    /// Fixes.
+    pub n: u64,
+    /// Mean NIS.
+    pub mean: f64,
+    /// The χ²(dof) 95 % band.
+    pub band: (f64, f64),
+    /// Fraction inside the band.
+    pub in_band: f64,
+    /// Fraction above it.
+    pub above: f64,
+    /// Fraction below it.
+    pub below: f64,
+}
+
+impl NisSummary {
+    fn of(s: &vinebench_onboard::estimator::NisSeries) -> NisSummary {
+        let n = s.n.max(1) as f64;
+        NisSummary {
+            dof: s.dof,
+            n: s.n,
+            mean: s.mean(),
+            band: s.band,
+            in_band: s.in_band(),
+            above: s.above as f64 / n,
+            below: s.below as f64 / n,
+        }
+    }
+
+    /// One line for people: the numbers and what they mean.
+    pub fn verdict(&self) -> String {
+        let what = if self.mean > 2.0 * f64::from(self.dof) {
+            "over-confident: its covariance (or the receiver's) is too small for the errors"
+        } else if self.mean < 0.5 * f64::from(self.dof) {
+            "below χ²: the fixes agree with the filter better than their σ says (a \
+             receiver's slowly wandering error, which the filter follows, does this; so does a \
+             pessimistic receiver covariance): no sign of overconfidence"
+        } else {
+            "consistent with its covariance"
+        };
+        format!(
+            "GNSS NIS mean {:.2} (χ²({}) expects {}), {:.1} % inside its 95 % band [{:.3}, \
+             {:.2}], {:.1} % above: {what}",
+            self.mean,
+            self.dof,
+            self.dof,
+            100.0 * self.in_band,
+            self.band.0,
+            self.band.1,
+            100.0 * self.above
+        )
+    }
+}
+
+/// A source's pose is interpolated at a GNSS stamp only between poses at most this far
+/// apart.
+pub const RESIDUAL_MAX_GAP: Nanos = Nanos::from_secs(1);
+
+/// `(stamp, horizontal, vertical)` residuals of `est` against the poses of `reference`,
+/// with `est`'s position interpolated linearly at each reference stamp (both in time
+/// order, one pass each).
+fn residuals_against(
+    reference: &dyn scoring::Poses,
+    est: &dyn scoring::Poses,
+) -> Vec<(Nanos, f64, f64)> {
+    let mut out = Vec::new();
+    let mut it = est.poses().peekable();
+    let mut prev: Option<scoring::spool::Pose> = None;
+    for (t, r) in reference.poses() {
+        while let Some(p) = it.peek() {
+            if p.0 > t {
+                break;
+            }
+            prev = it.next();
+        }
+        let p = match (prev, it.peek()) {
+            (Some(a), _) if a.0 == t => a.1.translation.vector,
+            (Some(a), Some(b)) if b.0 - a.0 <= RESIDUAL_MAX_GAP => {
+                let s = (t - a.0).as_nanos() as f64 / (b.0 - a.0).as_nanos() as f64;
+                a.1.translation.vector.lerp(&b.1.translation.vector, s)
+            }
+            _ => continue,
+        };
+        let d = p - r.translation.vector;
+        out.push((t, d.x.hypot(d.y), d.z));
+    }
+    out
+}
+
+/// The summary of [`residuals_against`].
+fn summarize_residuals(res: &[(Nanos, f64, f64)]) -> Option<GnssResiduals> {
+    if res.is_empty() {
+        return None;
+    }
+    let n = res.len();
+    let mut h: Vec<f64> = res.iter().map(|r| r.1).collect();
+    h.sort_by(f64::total_cmp);
+    let q = |p: f64| h[((p * (n - 1) as f64).round() as usize).min(n - 1)];
+    let rms = |f: &dyn Fn(&(Nanos, f64, f64)) -> f64| {
+        (res.iter().map(|r| f(r).powi(2)).sum::<f64>() / n as f64).sqrt()
+    };
+    Some(GnssResiduals {
+        n,
+        horizontal_rmse_m: rms(&|r| r.1),
+        horizontal_median_m: q(0.5),
+        horizontal_p95_m: q(0.95),
+        horizontal_max_m: h[n - 1],
+        vertical_rmse_m: rms(&|r| r.2),
+    })
 }
 
 /// The report of a replay (`report.json`; `report.md` for people).
@@ -1867,9 +2014,30 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             })
             .collect()
     };
+    // Without ground truth: every source against the GNSS track, and the EIF's NIS.
+    let gnss_track = estimates
+        .iter()
+        .find(|e| e.name == "gnss" && !e.poses.is_empty());
+    let mut residual_series: Vec<(&'static str, Vec<(Nanos, f64)>)> = Vec::new();
+    let mut vs_gnss: BTreeMap<&str, GnssResiduals> = BTreeMap::new();
+    if let Some(g) = gnss_track.filter(|_| !have_truth) {
+        for e in estimates.iter().filter(|e| e.name != "gnss") {
+            let res = residuals_against(&g.poses, &e.poses);
+            if let Some(summary) = summarize_residuals(&res) {
+                vs_gnss.insert(e.name, summary);
+                residual_series.push((
+                    e.name,
+                    scoring::plots::thin_errors(res.iter().map(|r| (r.0, r.1)).collect()),
+                ));
+            }
+        }
+        g.poses.check().map_err(spool_err("estimate"))?;
+    }
     let sources: Vec<ReplaySource> = estimates
         .iter()
         .map(|e| ReplaySource {
+            vs_gnss: vs_gnss.get(e.name).cloned(),
+            gnss_nis: e.stats.gnss_nis.as_ref().map(NisSummary::of),
             slam: slam_metrics(e.name),
             name: e.name.to_string(),
             poses: e.poses.len(),
@@ -1978,8 +2146,124 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         nothing_usable,
         passed,
     };
-    write_report(&dir, &report, &truth, &estimates)?;
+    write_report(&dir, &report, &truth, &estimates, &residual_series)?;
     Ok(ReplayOutcome { dir, report })
+}
+
+/// `report.md`'s section for a recording without ground truth: the sources against the
+/// GNSS track (table, top view, residuals over time) and the EIF's NIS (with its plot).
+fn no_truth_section(
+    md: &mut String,
+    dir: &Path,
+    report: &ReplayReport,
+    estimates: &[crate::runner::Estimate],
+    residual_series: &[(&str, Vec<(Nanos, f64)>)],
+) {
+    let with_residuals: Vec<&ReplaySource> = report
+        .sources
+        .iter()
+        .filter(|s| s.vs_gnss.is_some())
+        .collect();
+    let gnss = estimates
+        .iter()
+        .find(|e| e.name == "gnss" && !e.poses.is_empty());
+    let _ = writeln!(md, "\n## Against the GNSS track (no ground truth)\n");
+    let Some(gnss) = gnss else {
+        let _ = writeln!(
+            md,
+            "No `gnss` source ran (add \"gnss\" to `[estimators] run`): nothing to compare with."
+        );
+        return;
+    };
+    let _ = writeln!(
+        md,
+        "Each source's position at the GNSS poses (eq. 1: antenna fix and AHRS orientation), \
+         interpolated. With RTK fixes the residual bounds the source's error to a few \
+         centimetres more than the receiver's; with single fixes it is mostly the receiver's.\n\n\
+         | source | fixes | horizontal RMS [m] | median [m] | p95 [m] | max [m] | vertical RMS [m] |\n\
+         |---|---:|---:|---:|---:|---:|---:|"
+    );
+    for s in &with_residuals {
+        if let Some(r) = &s.vs_gnss {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                s.name,
+                r.n,
+                r.horizontal_rmse_m,
+                r.horizontal_median_m,
+                r.horizontal_p95_m,
+                r.horizontal_max_m,
+                r.vertical_rmse_m
+            );
+        }
+    }
+    let named: Vec<(&str, &dyn scoring::Poses)> = estimates
+        .iter()
+        .filter(|e| e.name != "gnss")
+        .map(|e| (e.name, &e.poses as &dyn scoring::Poses))
+        .collect();
+    let t0 = gnss.poses.first().map_or(Nanos(0), |p| p.0);
+    fn plot(md: &mut String, file: &str, title: &str, r: Result<(), scoring::plots::PlotError>) {
+        match r {
+            Ok(()) => {
+                let _ = writeln!(md, "\n![{title}]({file})");
+            }
+            Err(e) => {
+                let _ = writeln!(md, "\n{file}: {e}");
+            }
+        }
+    }
+    plot(
+        md,
+        "trajectories.svg",
+        "trajectories against the GNSS track",
+        scoring::plots::plot_trajectories_against_svg(
+            dir.join("trajectories.svg"),
+            "GNSS (eq. 1)",
+            &gnss.poses,
+            &named,
+        ),
+    );
+    let series: Vec<(&str, &[(Nanos, f64)])> = residual_series
+        .iter()
+        .map(|(n, s)| (*n, s.as_slice()))
+        .collect();
+    if !series.is_empty() {
+        plot(
+            md,
+            "gnss_residuals.svg",
+            "horizontal residual to the GNSS track",
+            scoring::plots::plot_series_svg(
+                dir.join("gnss_residuals.svg"),
+                "Horizontal distance to the GNSS track",
+                "horizontal residual (m)",
+                &series,
+                t0,
+                &[],
+            ),
+        );
+    }
+    for (s, e) in report.sources.iter().zip(estimates) {
+        let (Some(nis), Some(points)) = (&s.gnss_nis, &e.stats.gnss_nis) else {
+            continue;
+        };
+        let _ = writeln!(md, "\n**{}**: {}.", s.name, nis.verdict());
+        let file = format!("nis_{}.svg", s.name);
+        plot(
+            md,
+            &file,
+            "GNSS NIS",
+            scoring::plots::plot_series_svg(
+                dir.join(&file),
+                &format!("{}: GNSS position NIS (χ²(3) if consistent)", s.name),
+                "normalized innovation squared",
+                &[(s.name.as_str(), points.points.as_slice())],
+                t0,
+                &[(nis.band.0, "χ²(3) 2.5 %"), (nis.band.1, "χ²(3) 97.5 %")],
+            ),
+        );
+    }
 }
 
 fn write_report(
@@ -1987,6 +2271,7 @@ fn write_report(
     report: &ReplayReport,
     truth: &dyn scoring::Poses,
     estimates: &[crate::runner::Estimate],
+    residual_series: &[(&str, Vec<(Nanos, f64)>)],
 ) -> Result<(), ReplayError> {
     let jp = dir.join("report.json");
     let json =
@@ -2076,6 +2361,9 @@ fn write_report(
         for x in &report.expectations {
             let _ = writeln!(md, "- {x}");
         }
+    }
+    if truth.is_empty() {
+        no_truth_section(&mut md, dir, report, estimates, residual_series);
     }
     if !truth.is_empty() {
         let named: Vec<(&str, &dyn scoring::Poses)> = estimates

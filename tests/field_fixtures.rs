@@ -648,3 +648,94 @@ fn a_consumer_mems_imu_is_measured_while_standing_and_named_by_its_datasheet() {
         "{e}"
     );
 }
+
+#[test]
+fn without_ground_truth_the_report_compares_with_the_gnss_track_and_checks_the_nis() {
+    let (tmp, recording, _) = drive();
+    // A field recording has no truth: drop it. The mapping runs the GNSS track too.
+    let field = tmp.path().join("no-truth.mcap");
+    rewrite(&recording, &field, |topic, data| {
+        (topic != "/ground_truth/odom").then(|| data.to_vec())
+    });
+    let mapping = TOPICS.replace("run = [\"eif\"]", "run = [\"eif\", \"gnss\"]");
+    let r = replay_with(&field, &mapping, &tmp.path().join("field"));
+    let dir = tmp.path().join("field");
+    assert_eq!(r.report.ground_truth_poses, 0);
+    let eif = &r.report.sources[0];
+    assert!(eif.score.is_none());
+    let res = eif.vs_gnss.as_ref().unwrap();
+    // A second computation from the written TUM files: the EIF's poses at the GNSS
+    // stamps (both on the simulation's epoch grid, so the stamps coincide).
+    let gnss = tum(&dir.join("estimate_gnss.tum"));
+    let est = tum(&dir.join("estimate_eif.tum"));
+    let mut h2 = Vec::new();
+    for g in &gnss {
+        let k = est.partition_point(|e| e[0] < g[0] - 1e-6);
+        if let Some(e) = est.get(k).filter(|e| (e[0] - g[0]).abs() <= 1e-6) {
+            h2.push((e[1] - g[1]).powi(2) + (e[2] - g[2]).powi(2));
+        }
+    }
+    let rms = (h2.iter().sum::<f64>() / h2.len() as f64).sqrt();
+    eprintln!(
+        "no truth: EIF to the GNSS track {res:?} (from the TUM files: RMS {rms:.4} m over {} \
+         stamps); {}",
+        h2.len(),
+        eif.gnss_nis.as_ref().unwrap().verdict()
+    );
+    assert!(
+        h2.len() as f64 > 0.9 * res.n as f64,
+        "{} of {}",
+        h2.len(),
+        res.n
+    );
+    assert!(
+        (res.horizontal_rmse_m - rms).abs() < 2e-4,
+        "{} vs {rms}",
+        res.horizontal_rmse_m
+    );
+    assert!(res.horizontal_rmse_m < 0.05, "{res:?}");
+    // The filter on the clean recording is not over-confident: few NIS values above the
+    // χ²(3) band. (Its mean is below 3: the simulated receiver's RTK error wanders with a
+    // 30 s correlation time and the filter follows it, so fixes agree better than their σ.)
+    let nis = eif.gnss_nis.as_ref().unwrap();
+    assert!(nis.n > 300 && nis.mean < 3.0 && nis.above < 0.05, "{nis:?}");
+    assert!(
+        nis.verdict().contains("no sign of overconfidence"),
+        "{}",
+        nis.verdict()
+    );
+    for f in ["trajectories.svg", "gnss_residuals.svg", "nis_eif.svg"] {
+        assert!(dir.join(f).is_file(), "{f}");
+    }
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(
+        md.contains("Against the GNSS track") && md.contains("GNSS NIS mean"),
+        "{md}"
+    );
+
+    // A receiver in multipath that keeps claiming RTK: for 10 s its fixes scatter by
+    // 0.2 m (1σ, independent per fix) with the 1-2 cm covariance. The NIS says so.
+    let proud = tmp.path().join("proud.mcap");
+    let rng = std::cell::RefCell::new(Normal(11));
+    let first = std::cell::Cell::new(None);
+    rewrite_fix(&field, &proud, |m| {
+        let t0 = first.get().unwrap_or(m.stamp);
+        first.set(Some(t0));
+        if (15.0..25.0).contains(&(m.stamp - t0).as_secs_f64()) {
+            let d = rng.borrow_mut().vector(0.2);
+            m.position.lat_deg += (d.y / 6.371e6).to_degrees();
+            m.position.lon_deg +=
+                (d.x / (6.371e6 * m.position.lat_deg.to_radians().cos())).to_degrees();
+        }
+        let mut out = Vec::new();
+        ros::encode_nav_sat_fix(m, &mut out);
+        out
+    });
+    let r = replay_with(&proud, &mapping, &tmp.path().join("proud"));
+    let nis = r.report.sources[0].gnss_nis.as_ref().unwrap();
+    eprintln!("multipath claimed as RTK for 10 s: {}", nis.verdict());
+    assert!(
+        nis.mean > 6.0 && nis.verdict().contains("over-confident"),
+        "{nis:?}"
+    );
+}

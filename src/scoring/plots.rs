@@ -94,7 +94,16 @@ fn with_truth<'a>(
     truth: &'a dyn Poses,
     sources: &[(&'a str, &'a dyn Poses)],
 ) -> Vec<(&'a str, &'a dyn Poses, RGBColor)> {
-    std::iter::once(("ground truth", truth, TRUTH_COLOUR))
+    with_reference("ground truth", truth, sources)
+}
+
+/// [`with_truth`] with another reference (a field recording's GNSS track).
+fn with_reference<'a>(
+    label: &'a str,
+    truth: &'a dyn Poses,
+    sources: &[(&'a str, &'a dyn Poses)],
+) -> Vec<(&'a str, &'a dyn Poses, RGBColor)> {
+    std::iter::once((label, truth, TRUTH_COLOUR))
         .chain(
             sources
                 .iter()
@@ -243,8 +252,32 @@ pub fn trajectories_marked_svg(
     rows: &[Vec<(f64, f64)>],
     marks: &[(f64, f64)],
 ) -> Result<String, PlotError> {
+    top_view_svg("ground truth", truth, sources, rows, marks)
+}
+
+/// Writes the top view of `sources` against a `reference` drawn (and labelled
+/// `reference_label`) where the ground truth would be: a field recording's GNSS track.
+pub fn plot_trajectories_against_svg(
+    path: impl AsRef<Path>,
+    reference_label: &str,
+    reference: &dyn Poses,
+    sources: &[(&str, &dyn Poses)],
+) -> Result<(), PlotError> {
+    write(
+        path.as_ref(),
+        &top_view_svg(reference_label, reference, sources, &[], &[])?,
+    )
+}
+
+fn top_view_svg(
+    reference_label: &str,
+    truth: &dyn Poses,
+    sources: &[(&str, &dyn Poses)],
+    rows: &[Vec<(f64, f64)>],
+    marks: &[(f64, f64)],
+) -> Result<String, PlotError> {
     let caption = "Top view (ENU)";
-    let all = with_truth(truth, sources);
+    let all = with_reference(reference_label, truth, sources);
     let xr = padded_range(
         all.iter()
             .flat_map(|(_, t, _)| t.poses().map(|p| p.1.translation.x)),
@@ -335,6 +368,27 @@ pub fn errors_svg(
     t0: Nanos,
     windows: &[(Nanos, Nanos)],
 ) -> Result<String, PlotError> {
+    series_svg(
+        "Translation error (unaligned)",
+        "translation error (m)",
+        series,
+        t0,
+        windows,
+        &[],
+    )
+}
+
+/// Named time series (s since `t0`) as lines on one chart, with `windows` shaded and
+/// horizontal reference lines `hlines` (value, legend label; dashed grey), as SVG text.
+/// The y axis starts at 0 and ends above the largest value (and reference line).
+pub fn series_svg(
+    caption: &str,
+    y_desc: &str,
+    series: &[(&str, &[(Nanos, f64)])],
+    t0: Nanos,
+    windows: &[(Nanos, Nanos)],
+    hlines: &[(f64, &str)],
+) -> Result<String, PlotError> {
     let times = series
         .iter()
         .flat_map(|(_, s)| s.iter().map(|&(t, _)| secs_since(t, t0)));
@@ -342,6 +396,7 @@ pub fn errors_svg(
     let ymax = series
         .iter()
         .flat_map(|(_, s)| s.iter().map(|&(_, e)| e))
+        .chain(hlines.iter().map(|h| h.0))
         .filter(|e| e.is_finite())
         .fold(0.0f64, f64::max);
     let ymax = if ymax > 0.0 { ymax * (1.0 + PAD) } else { 1.0 };
@@ -350,13 +405,13 @@ pub fn errors_svg(
     {
         let root = SVGBackend::with_string(&mut svg, SIZE_PX).into_drawing_area();
         root.fill(&WHITE).map_err(draw_err)?;
-        let mut chart = chart_builder(&root, "Translation error (unaligned)")
+        let mut chart = chart_builder(&root, caption)
             .build_cartesian_2d(tx0..tx1, 0.0..ymax)
             .map_err(draw_err)?;
         chart
             .configure_mesh()
             .x_desc("time since start (s)")
-            .y_desc("translation error (m)")
+            .y_desc(y_desc)
             .draw()
             .map_err(draw_err)?;
         let shade = SHADE_COLOUR.mix(SHADE_OPACITY).filled();
@@ -385,10 +440,33 @@ pub fn errors_svg(
                 .label(name)
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
         }
+        for &(v, label) in hlines {
+            let style = BLACK.mix(0.5).stroke_width(1);
+            chart
+                .draw_series(DashedLineSeries::new(vec![(tx0, v), (tx1, v)], 6, 4, style))
+                .map_err(draw_err)?
+                .label(label)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+        }
         draw_legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
         root.present().map_err(draw_err)?;
     }
     Ok(svg)
+}
+
+/// Writes [`series_svg`] to `path`.
+pub fn plot_series_svg(
+    path: impl AsRef<Path>,
+    caption: &str,
+    y_desc: &str,
+    series: &[(&str, &[(Nanos, f64)])],
+    t0: Nanos,
+    hlines: &[(f64, &str)],
+) -> Result<(), PlotError> {
+    write(
+        path.as_ref(),
+        &series_svg(caption, y_desc, series, t0, &[], hlines)?,
+    )
 }
 
 /// Altitude U over time (s since `t0`) of the ground truth and each source; legend

@@ -1066,6 +1066,7 @@ impl Eif {
         let mut n_info = 0usize;
         let mut recovered = 0u32;
         let mut wheel_recovered = 0u32;
+        let mut nis: Vec<f64> = Vec::new();
         let mut reject = |why: &str| stats.count_rejected(why);
         let mut reclone_with: Option<PrevTracking> = None;
         let nav = f.core.nav.clone();
@@ -1075,40 +1076,39 @@ impl Eif {
                 Pending::GnssPosition { z, cov, r_ia } => {
                     let lin = measurement::gnss_position(&nav, r_ia, z);
                     let r = cov + Matrix3::identity() * (POSITION_FLOOR_M * POSITION_FLOOR_M);
+                    let s = lin.h * f.core.cov * lin.h.transpose() + r;
+                    let Some(c) = Cholesky::new(s) else {
+                        reject("numerical_skip");
+                        continue;
+                    };
+                    let d2 = lin.residual.dot(&c.solve(&lin.residual));
+                    if d2.is_nan() {
+                        reject("numerical_skip");
+                        continue;
+                    }
+                    // The consistency record: every fix's NIS against the receiver's and
+                    // the filter's claimed uncertainty, gated or not.
+                    nis.push(d2);
                     if cfg.gate_chi2 > 0.0 {
-                        let s = lin.h * f.core.cov * lin.h.transpose() + r;
-                        match Cholesky::new(s) {
-                            Some(c) => {
-                                let d2 = lin.residual.dot(&c.solve(&lin.residual));
-                                if d2.is_nan() {
-                                    reject("numerical_skip");
-                                    continue;
-                                }
-                                if d2 > cfg.gate_chi2 {
-                                    f.gated_in_a_row += 1;
-                                    if f.gated_in_a_row <= GATE_RECOVERY_FIXES {
-                                        reject("gnss_gated");
-                                        continue;
-                                    }
-                                    // Every fix for a while disagreed: the filter is lost.
-                                    // Re-open its position uncertainty to the innovation
-                                    // and its velocity to the drift rate that explains it.
-                                    let y = lin.residual;
-                                    let yy = y * y.transpose();
-                                    let dt = (f.t - f.last_fix_used).as_secs_f64().max(1.0);
-                                    let mut pp = f.core.cov.fixed_view_mut::<3, 3>(IDX_P, IDX_P);
-                                    pp += yy;
-                                    let mut vv = f.core.cov.fixed_view_mut::<3, 3>(IDX_V, IDX_V);
-                                    vv += yy / (dt * dt);
-                                    recovered += 1;
-                                }
-                                f.gated_in_a_row = 0;
-                            }
-                            None => {
-                                reject("numerical_skip");
+                        if d2 > cfg.gate_chi2 {
+                            f.gated_in_a_row += 1;
+                            if f.gated_in_a_row <= GATE_RECOVERY_FIXES {
+                                reject("gnss_gated");
                                 continue;
                             }
+                            // Every fix for a while disagreed: the filter is lost.
+                            // Re-open its position uncertainty to the innovation
+                            // and its velocity to the drift rate that explains it.
+                            let y = lin.residual;
+                            let yy = y * y.transpose();
+                            let dt = (f.t - f.last_fix_used).as_secs_f64().max(1.0);
+                            let mut pp = f.core.cov.fixed_view_mut::<3, 3>(IDX_P, IDX_P);
+                            pp += yy;
+                            let mut vv = f.core.cov.fixed_view_mut::<3, 3>(IDX_V, IDX_V);
+                            vv += yy / (dt * dt);
+                            recovered += 1;
                         }
+                        f.gated_in_a_row = 0;
                     }
                     let r_eff = r * correlation_inflation(cfg.gnss_tau, f.t - f.last_fix_used);
                     if add_information(&mut lambda_add, &mut eta, &lin, &r_eff).is_some() {
@@ -1290,6 +1290,16 @@ impl Eif {
         }
         for _ in 0..wheel_recovered {
             self.stats.count_event("wheel_gate_recovered");
+        }
+        if !nis.is_empty() {
+            let t = self.filter.as_ref().map_or(Nanos(0), |f| f.t);
+            let series = self
+                .stats
+                .gnss_nis
+                .get_or_insert_with(|| super::NisSeries::new(3));
+            for d2 in nis {
+                series.push(t, d2);
+            }
         }
         for (k, name) in KIND_NAMES.iter().enumerate() {
             for _ in 0..counts.kinds[k] {

@@ -45,6 +45,96 @@ pub struct EstimatorStats {
     pub events: BTreeMap<String, u64>,
     /// Free-form notes for the report (e.g. "initialized at t = ... from RTK fix").
     pub notes: Vec<String>,
+    /// The normalized innovation squared of the GNSS position fixes (EIF), if any.
+    pub gnss_nis: Option<NisSeries>,
+}
+
+/// Most points a [`NisSeries`] keeps for plotting (the counts cover every value).
+pub const NIS_POINTS: usize = 4096;
+
+/// The normalized innovation squared `yᵀS⁻¹y` of a filter's measurements of one kind:
+/// exact counts against the chi-square band, and a thinned series for a plot. For a
+/// consistent filter the NIS of an `m`-dimensional measurement follows χ²(m): mean `m`,
+/// 95 % of the values inside the band.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NisSeries {
+    /// Degrees of freedom (the measurement's dimension).
+    pub dof: u32,
+    /// The two-sided 95 % band of χ²(dof): 2.5 % and 97.5 % quantiles.
+    pub band: (f64, f64),
+    /// Values seen.
+    pub n: u64,
+    /// Their sum.
+    pub sum: f64,
+    /// Values below the band (the filter is under-confident) and above it (over-confident
+    /// or an outlier).
+    pub below: u64,
+    /// See `below`.
+    pub above: u64,
+    /// (stamp, NIS): every `stride`-th value, at most [`NIS_POINTS`].
+    pub points: Vec<(vinebench_msgs::Nanos, f64)>,
+    stride: u64,
+}
+
+impl NisSeries {
+    /// An empty series of `dof` (1 to 3) degrees of freedom.
+    pub fn new(dof: u32) -> NisSeries {
+        // χ² quantiles, 2.5 % and 97.5 % (tables: 0.000982/5.024, 0.0506/7.378,
+        // 0.2158/9.348).
+        let band = match dof {
+            1 => (0.000_982, 5.024),
+            2 => (0.050_6, 7.378),
+            _ => (0.215_8, 9.348),
+        };
+        NisSeries {
+            dof,
+            band,
+            n: 0,
+            sum: 0.0,
+            below: 0,
+            above: 0,
+            points: Vec::new(),
+            stride: 1,
+        }
+    }
+
+    /// Adds one value.
+    pub fn push(&mut self, t: vinebench_msgs::Nanos, nis: f64) {
+        if !nis.is_finite() {
+            return;
+        }
+        if self.n.is_multiple_of(self.stride) {
+            if self.points.len() == NIS_POINTS {
+                // Keep every other point and take half as many from now on.
+                let mut i = 0;
+                self.points.retain(|_| {
+                    i += 1;
+                    i % 2 == 1
+                });
+                self.stride *= 2;
+            }
+            if self.n.is_multiple_of(self.stride) {
+                self.points.push((t, nis));
+            }
+        }
+        self.n += 1;
+        self.sum += nis;
+        if nis < self.band.0 {
+            self.below += 1;
+        } else if nis > self.band.1 {
+            self.above += 1;
+        }
+    }
+
+    /// The mean NIS (the dof for a consistent filter).
+    pub fn mean(&self) -> f64 {
+        self.sum / self.n.max(1) as f64
+    }
+
+    /// The fraction of values inside the band (0.95 for a consistent filter).
+    pub fn in_band(&self) -> f64 {
+        (self.n - self.below - self.above) as f64 / self.n.max(1) as f64
+    }
 }
 
 /// Increments `map[key]`, allocating the key only the first time (counters are bumped
