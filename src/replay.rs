@@ -113,7 +113,7 @@ impl ReplayReport {
     /// them (by recorded topic and reason), each source's rejected messages by reason and
     /// its first [`NOTES_LISTED`] notes. For the console and `report.md`.
     pub fn estimator_notes(&self) -> Vec<String> {
-        let mut out = Vec::new();
+        let mut out: Vec<String> = self.urdf_transforms.iter().cloned().collect();
         if !self.tf_as_static.is_empty() {
             let pairs: Vec<&str> = self
                 .tf_as_static
@@ -206,6 +206,10 @@ pub struct ReplayConfig {
     /// `/tf_static`), as `static_transform_publisher` takes them.
     #[serde(default)]
     pub static_transforms: Vec<StaticTransformEntry>,
+    /// The robot's URDF (relative to the mapping file): its fixed joints supply the
+    /// extrinsics that neither `[[static_transforms]]`, `/tf_static` nor unchanging `/tf`
+    /// transforms give. Any robot's URDF (xacro expanded); moving joints are left out.
+    pub urdf: Option<PathBuf>,
     /// `[imu]`: how the recorded IMU reports its orientation.
     #[serde(default)]
     pub imu: ImuConventions,
@@ -755,6 +759,8 @@ pub struct ReplayReport {
     /// Transforms taken as static because `/tf` repeated them unchanged (a ROS 1 robot
     /// without `/tf_static`), one line each.
     pub tf_as_static: Vec<String>,
+    /// What the mapping file's `urdf` supplied, if it names one.
+    pub urdf_transforms: Option<String>,
     /// Ground-truth poses (0 without `/ground_truth/odom`).
     pub ground_truth_poses: usize,
     /// Closed-loop metrics of the ground truth itself.
@@ -1705,6 +1711,39 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         ));
         tf.push(t);
     }
+    let mut urdf_transforms = None;
+    if let Some(urdf) = &cfg.urdf {
+        let path = match opts.config.as_deref().and_then(Path::parent) {
+            Some(base) if urdf.is_relative() => base.join(urdf),
+            _ => urdf.clone(),
+        };
+        let joints =
+            vinebench_sim::robot::RobotModel::fixed_joints_of_file(&path).map_err(|e| {
+                ReplayError::Input {
+                    file: cfg_file.clone().unwrap_or_else(|| file_name.clone()),
+                    problem: format!("`urdf` = {:?}: {e}", urdf.display().to_string()),
+                }
+            })?;
+        let mut added = 0;
+        for (parent, child, iso) in joints {
+            let mut t = TransformStamped {
+                stamp: Nanos(0),
+                parent: FrameId::new(&parent),
+                child: FrameId::new(&child),
+                parent_from_child: iso,
+            };
+            rename(&cfg.frames, &mut t.parent);
+            rename(&cfg.frames, &mut t.child);
+            if !tf.iter().any(|x| x.child == t.child) {
+                tf.push(t);
+                added += 1;
+            }
+        }
+        urdf_transforms = Some(format!(
+            "{added} fixed joint(s) of {} used for frames the recording does not place",
+            path.display()
+        ));
+    }
     if got.repeated_tf.overflow > 0 {
         tf_as_static.push(format!(
             "{} transform(s) on {tf_topic} beyond {MAX_TF_PAIRS} frame pairs not examined",
@@ -2138,6 +2177,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             .collect(),
         stage_notes: out.stage.notes.clone(),
         tf_as_static,
+        urdf_transforms,
         ground_truth_poses: truth.len(),
         ground_truth: metrics::closed_loop(&truth).ok(),
         sources,

@@ -739,3 +739,58 @@ fn without_ground_truth_the_report_compares_with_the_gnss_track_and_checks_the_n
         "{nis:?}"
     );
 }
+
+#[test]
+fn the_robots_urdf_supplies_the_extrinsics_a_recording_lacks() {
+    let (tmp, recording, reference) = drive();
+    let ate = eif_ate(&reference);
+    let bare = tmp.path().join("no-extrinsics.mcap");
+    rewrite(&recording, &bare, |topic, data| {
+        (topic != "/tf_static").then(|| data.to_vec())
+    });
+    // Without extrinsics replay refuses, naming what is missing.
+    let map = tmp.path().join("none.toml");
+    std::fs::write(&map, TOPICS).unwrap();
+    let e = replay(
+        &bare,
+        &ReplayOptions {
+            config: Some(map),
+            out_dir: Some(tmp.path().join("none")),
+            ..ReplayOptions::default()
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("no static transforms"), "{e}");
+    // The robot's URDF (the same file the simulator read) fills them in.
+    let urdf = Path::new(env!("CARGO_MANIFEST_DIR")).join("robot-models/tracked-sensorbox.urdf");
+    let mapping = format!("urdf = {:?}\n{TOPICS}", urdf.display().to_string());
+    let r = replay_with(&bare, &mapping, &tmp.path().join("urdf"));
+    let a = eif_ate(&r);
+    eprintln!(
+        "EIF ATE: /tf_static {ate:.5} m, URDF {a:.5} m; {:?}",
+        r.report.urdf_transforms
+    );
+    assert!((a - ate).abs() < 1e-6, "{a} vs {ate}");
+    assert!(
+        r.report
+            .urdf_transforms
+            .as_ref()
+            .unwrap()
+            .contains("fixed joint(s)")
+    );
+    // A URDF that is not there is named with the key.
+    let map = tmp.path().join("missing.toml");
+    std::fs::write(&map, format!("urdf = \"nowhere.urdf\"\n{TOPICS}")).unwrap();
+    let e = replay(
+        &bare,
+        &ReplayOptions {
+            config: Some(map),
+            out_dir: Some(tmp.path().join("missing")),
+            ..ReplayOptions::default()
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("`urdf`") && e.contains("nowhere.urdf"), "{e}");
+}

@@ -525,6 +525,38 @@ impl RobotModel {
         RobotModel::from_urdf_str(&text, &file)
     }
 
+    /// The fixed joints of any robot's URDF file (at most [`MAX_URDF_BYTES`]) as
+    /// `(parent, child, parent_from_child)`: the extrinsics, for a field recording that
+    /// lacks them. Unlike [`RobotModel::from_urdf_file`] the robot need not be one
+    /// vinebench can simulate; moving joints are left out.
+    pub fn fixed_joints_of_file(
+        path: &std::path::Path,
+    ) -> Result<Vec<(String, String, Isometry3<f64>)>, RobotError> {
+        use std::io::Read;
+        let file = path.display().to_string();
+        let mut bytes = Vec::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(MAX_URDF_BYTES as u64 + 1).read_to_end(&mut bytes))
+            .map_err(|source| RobotError::Io {
+                file: file.clone(),
+                source,
+            })?;
+        if bytes.len() > MAX_URDF_BYTES {
+            return Err(RobotError::Parse {
+                file,
+                message: format!("the file is larger than {MAX_URDF_BYTES} bytes (MAX_URDF_BYTES)"),
+            });
+        }
+        let text = String::from_utf8(bytes).map_err(|e| RobotError::Parse {
+            file: file.clone(),
+            message: format!(
+                "not UTF-8 text (invalid byte at offset {})",
+                e.utf8_error().valid_up_to()
+            ),
+        })?;
+        urdf::fixed_joints(&text, &file)
+    }
+
     /// Parses URDF text; `source` names it in errors.
     pub fn from_urdf_str(text: &str, source: &str) -> Result<RobotModel, RobotError> {
         urdf::parse(text, source)

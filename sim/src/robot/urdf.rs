@@ -109,6 +109,51 @@ fn finite3(v: &urdf_rs::Vec3) -> bool {
     v.iter().all(|c| c.is_finite())
 }
 
+/// The fixed joints of any robot's URDF as `(parent, child, parent_from_child)`: the
+/// extrinsics a field recording may lack (`[[static_transforms]]` from the robot's own
+/// description). Same XML limits and checks as [`parse`], but none of a vinebench robot's
+/// requirements (drive, inertia, `base_link`): moving joints are skipped (not static).
+pub(super) fn fixed_joints(
+    text: &str,
+    source: &str,
+) -> Result<Vec<(String, String, Isometry3<f64>)>, RobotError> {
+    let doc = xml::document(text, source)?;
+    let positions = xml::check(&doc, source)?;
+    let robot = urdf_rs::read_from_string(text).map_err(|e| RobotError::Parse {
+        file: source.to_string(),
+        message: e.to_string(),
+    })?;
+    let cx = Ctx {
+        source,
+        doc: &doc,
+        positions,
+    };
+    let mut out = Vec::new();
+    for j in robot
+        .joints
+        .iter()
+        .filter(|j| j.joint_type == urdf_rs::JointType::Fixed)
+    {
+        for (what, v) in [("xyz", &j.origin.xyz), ("rpy", &j.origin.rpy)] {
+            if !finite3(v) {
+                return Err(cx.invalid(
+                    joint_el(&j.name),
+                    format!(
+                        "<origin {what}> must be three finite numbers, found {:?}",
+                        v.0
+                    ),
+                ));
+            }
+        }
+        out.push((
+            j.parent.link.clone(),
+            j.child.link.clone(),
+            pose_of(&j.origin),
+        ));
+    }
+    Ok(out)
+}
+
 /// Parses and validates URDF text (see the module documentation of [`super`]).
 pub(super) fn parse(text: &str, source: &str) -> Result<RobotModel, RobotError> {
     // The XML checks first: limits, located errors, and nothing that urdf-rs's recursive
