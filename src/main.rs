@@ -124,23 +124,31 @@ enum Command {
     },
     /// Print scenarios/defaults.toml: every scenario key with its default and meaning.
     Defaults,
-    /// Run the estimators on a recording (MCAP, ROS 2 CDR) and write the outputs of a run.
+    /// Run the estimators on a recording (MCAP, rosbag2 folder, ROS 1 bag) and write the
+    /// outputs of a run.
     #[command(after_help = "Examples:\n  \
         vinebench replay runs/row-loop-rtk-20260101-120000/recording.mcap\n  \
-        vinebench replay field.mcap --config docs/field-topics.example.toml --out /tmp/field\n\n\
+        vinebench replay field.mcap --config docs/field-topics.example.toml --out /tmp/field\n  \
+        vinebench replay ~/bags/rosbag2_2026_09_14/ --config robot.toml   # .mcap or .db3 inside\n  \
+        vinebench replay field_2019.bag --config robot.toml              # ROS 1 bag\n\n\
         A vinebench recording replays with the scenario it recorded (metadata) and gives the \
         live run's estimates bit for bit, and its SLAM and maps when the images were recorded. \
-        A robot's recording needs a topic-mapping file \
-        (--config): which topic is the IMU, GNSS fix, tracking camera, wheel odometry, RGB-D \
-        cameras; frame renames; the map origin (default: the first fix); estimator and \
-        [mapper] parameters. Unmapped \
-        topics and unsupported types are skipped and counted. A damaged or truncated file \
-        replays what it still holds. The folder gets estimate_<source>.tum, ground_truth.tum \
-        (from /ground_truth/odom, used for scoring), loops.csv, map/, report.json, report.md. \
-        Exit code: 0 \
-        expectations hold (or none), 1 one fails, 2 nothing usable or bad input.")]
+        A robot's recording needs a topic-mapping file (--config, see \
+        docs/field-topics.example.toml): which topic is the IMU, GNSS fix, tracking camera, \
+        wheel odometry, RGB-D cameras; frame renames; extrinsics the recording lacks (or the \
+        robot's URDF); the IMU's axes, heading reference and noise profile; what the fixes' \
+        covariance and altitude are worth; the map origin (default: the first fix); estimator \
+        and [mapper] parameters. Unmapped topics and unsupported types are skipped and counted. \
+        A damaged or truncated file replays what it still holds. The folder gets \
+        estimate_<source>.tum, ground_truth.tum (from /ground_truth/odom, used for scoring), \
+        loops.csv, map/, report.json, report.md; without ground truth the report compares \
+        every source with the GNSS track and checks the EIF's GNSS NIS against its chi-square \
+        band. Exit code: 0 expectations hold (or none) and every requested source produced \
+        poses, 1 an expectation fails or a requested source produced none (named, with why), \
+        2 nothing usable (no source produced a pose) or bad input.")]
     Replay {
-        /// The recording (`.mcap`).
+        /// The recording: `.mcap`, a rosbag2 folder (`metadata.yaml` with `.mcap` or `.db3`)
+        /// or a ROS 1 `.bag`.
         recording: PathBuf,
         /// Topic-mapping file (TOML) for recordings not made by vinebench.
         #[arg(long, value_name = "TOML")]
@@ -543,6 +551,9 @@ fn dispatch(cmd: Command) -> Result<u8> {
                     o.dir.join("report.md").display()
                 );
                 return Ok(EXIT_ERROR);
+            }
+            for w in &r.without_poses {
+                outln!("FAIL: {w}");
             }
             print_verdict(&r.expectations, r.passed, &o.dir);
             Ok(if r.passed { EXIT_PASS } else { EXIT_FAIL })

@@ -776,7 +776,10 @@ pub struct ReplayReport {
     /// Why the replay gave nothing usable (no estimate source produced a pose), if so:
     /// `vinebench replay` then exits 2.
     pub nothing_usable: Option<String>,
-    /// True when every expectation holds and something usable came out.
+    /// Requested sources that produced no pose while others did, each with why: the
+    /// replay fails (exit 1).
+    pub without_poses: Vec<String>,
+    /// True when every expectation holds and every requested source produced poses.
     pub passed: bool,
 }
 
@@ -2156,7 +2159,38 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
                 .unwrap_or_default()
         )
     });
-    let passed = expectations.iter().all(|x| x.holds) && nothing_usable.is_none();
+    // A source the mapping file requests that produced nothing fails the replay (exit 1)
+    // even when others did: each is named with why (its first note, or what it lacked).
+    // (A vinebench recording replays its scenario as the live run did: its expectations
+    // decide, and a SLAM without recorded images has nothing to run on.)
+    let without_poses: Vec<String> = if nothing_usable.is_some() || user_cfg.is_none() {
+        Vec::new()
+    } else {
+        sources
+            .iter()
+            .filter(|s| s.poses == 0)
+            .map(|s| {
+                let used: u64 = s.used.values().sum();
+                let why = s.notes.first().cloned().unwrap_or_else(|| {
+                    let needs = match s.name.as_str() {
+                        "eif" | "gnss" => "topics.imu (with orientation) and topics.gnss_fix",
+                        "tracking_camera" => "topics.tracking_odom and a GNSS fix to anchor on",
+                        "dead_reckoning" => "topics.wheel_odom and topics.imu (with orientation)",
+                        _ => "its input topics",
+                    };
+                    if used == 0 && s.rejected.is_empty() {
+                        format!("it received no input: it needs {needs}")
+                    } else {
+                        format!("{used} messages used, rejected: {:?}", s.rejected)
+                    }
+                });
+                format!("{} produced no pose: {why}", s.name)
+            })
+            .collect()
+    };
+    let passed = expectations.iter().all(|x| x.holds)
+        && nothing_usable.is_none()
+        && without_poses.is_empty();
     let report = ReplayReport {
         vinebench_version: env!("CARGO_PKG_VERSION"),
         recording: file_name,
@@ -2184,6 +2218,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         maps,
         expectations,
         nothing_usable,
+        without_poses,
         passed,
     };
     write_report(&dir, &report, &truth, &estimates, &residual_series)?;
@@ -2328,6 +2363,9 @@ fn write_report(
     }
     if let Some(why) = &report.nothing_usable {
         let _ = writeln!(md, "\n**Nothing usable**: {why}.");
+    }
+    for w in &report.without_poses {
+        let _ = writeln!(md, "\n**Failed**: {w}.");
     }
     let _ = writeln!(md, "\n## Messages\n\n| topic | replayed |\n|---|---:|");
     for (t, n) in &report.replayed {

@@ -794,3 +794,44 @@ fn the_robots_urdf_supplies_the_extrinsics_a_recording_lacks() {
     .to_string();
     assert!(e.contains("`urdf`") && e.contains("nowhere.urdf"), "{e}");
 }
+
+#[test]
+fn a_requested_source_without_poses_fails_the_replay_by_name() {
+    let (tmp, recording, _) = drive();
+    let exe = env!("CARGO_BIN_EXE_vinebench");
+    let run = |name: &str, sources: &str| {
+        let map = tmp.path().join(format!("{name}.toml"));
+        std::fs::write(
+            &map,
+            TOPICS.replace("run = [\"eif\"]", &format!("run = [{sources}]")),
+        )
+        .unwrap();
+        std::process::Command::new(exe)
+            .arg("replay")
+            .arg(&recording)
+            .arg("--config")
+            .arg(&map)
+            .arg("--out")
+            .arg(tmp.path().join(name))
+            .output()
+            .unwrap()
+    };
+    let ok = run("ok", "\"eif\", \"gnss\"");
+    assert_eq!(
+        ok.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&ok.stdout)
+    );
+    // The tracking camera is requested, but the mapping feeds it nothing.
+    let partial = run("partial", "\"eif\", \"gnss\", \"tracking_camera\"");
+    let out = String::from_utf8_lossy(&partial.stdout);
+    assert_eq!(partial.status.code(), Some(1), "{out}");
+    assert!(
+        out.contains(
+            "FAIL: tracking_camera produced no pose: it received no input: it needs \
+                      topics.tracking_odom"
+        ),
+        "{out}"
+    );
+}
