@@ -90,6 +90,10 @@ pub struct TopicMap {
     pub tracking_odom: Option<String>,
     /// `nav_msgs/Odometry` of the wheels or tracks.
     pub wheel_odom: Option<String>,
+    /// `sensor_msgs/Imu` whose orientation is a dual-antenna GNSS heading (u-blox
+    /// `navheading`, Septentrio `heading`): its yaw, ENU (REP-103), plus
+    /// `[gnss] heading_offset_deg`.
+    pub gnss_heading: Option<String>,
     /// `sensor_msgs/Image` and `sensor_msgs/CameraInfo` topics to pass on.
     #[serde(default)]
     pub cameras: Vec<String>,
@@ -173,6 +177,7 @@ impl TopicMap {
             "/gnss/fix_velocity" => &self.gnss_velocity,
             "/tracking_camera/odom/sample" => &self.tracking_odom,
             "/wheel/odom" => &self.wheel_odom,
+            "/gnss/heading" => &self.gnss_heading,
             _ => &None,
         };
         mapped.as_deref().unwrap_or(internal)
@@ -343,6 +348,14 @@ pub struct GnssConventions {
     /// the vertical is only held loosely.
     #[serde(default)]
     pub altitude: AltitudeUse,
+    /// A dual-antenna heading's offset to the body's forward axis, degrees
+    /// counter-clockwise: the mounting of the baseline (0 = main → aux antenna points
+    /// forward; 90 = it points to the left).
+    #[serde(default)]
+    pub heading_offset_deg: f64,
+    /// 1σ of a dual-antenna heading whose message gives no yaw variance, degrees.
+    #[serde(default = "GnssConventions::default_heading_sigma")]
+    pub heading_sigma_deg: f64,
 }
 
 /// Whether fix altitudes are used (`[gnss] altitude`).
@@ -365,11 +378,27 @@ impl Default for GnssConventions {
             unknown_sigma_single_m: Self::default_single(),
             unknown_sigma_rtk_m: Self::default_rtk(),
             altitude: AltitudeUse::Use,
+            heading_offset_deg: 0.0,
+            heading_sigma_deg: Self::default_heading_sigma(),
         }
     }
 }
 
 impl GnssConventions {
+    /// A dual-antenna heading over a 1 m baseline with RTK: about 0.3°; 1° leaves room.
+    fn default_heading_sigma() -> f64 {
+        1.0
+    }
+
+    /// A dual-antenna heading turned to the body (`heading_offset_deg`), with
+    /// `heading_sigma_deg` where the message has no variance.
+    pub fn apply_heading(&self, m: &mut vinebench_msgs::GnssHeadingMsg) {
+        m.heading_rad += self.heading_offset_deg.to_radians();
+        if !(m.variance_rad2.is_finite() && m.variance_rad2 > 0.0) {
+            m.variance_rad2 = self.heading_sigma_deg.to_radians().powi(2);
+        }
+    }
+
     /// A consumer single-frequency receiver's stand-alone fix (u-blox M8: 2.5 m CEP).
     fn default_single() -> [f64; 2] {
         [2.5, 5.0]
@@ -389,6 +418,18 @@ impl GnssConventions {
                     "`{key}`: expected [horizontal, vertical] > 0 m, found {v:?}"
                 ));
             }
+        }
+        if !(self.heading_offset_deg.is_finite() && self.heading_offset_deg.abs() <= 360.0) {
+            return Err(format!(
+                "`gnss.heading_offset_deg`: expected degrees in [-360, 360], found {}",
+                self.heading_offset_deg
+            ));
+        }
+        let s = self.heading_sigma_deg;
+        if !(s.is_finite() && s > 0.0 && s <= 180.0) {
+            return Err(format!(
+                "`gnss.heading_sigma_deg`: expected degrees in (0, 180], found {s}"
+            ));
         }
         Ok(())
     }
@@ -800,6 +841,7 @@ enum Role {
     GnssVelocity,
     TrackingOdom,
     WheelOdom,
+    GnssHeading,
     Camera,
     TfStatic,
     Tf,
@@ -809,7 +851,7 @@ enum Role {
 impl Role {
     fn expected_types(self) -> &'static [&'static str] {
         match self {
-            Role::Imu => &["sensor_msgs/Imu"],
+            Role::Imu | Role::GnssHeading => &["sensor_msgs/Imu"],
             Role::GnssFix => &["sensor_msgs/NavSatFix"],
             Role::GnssVelocity => &["geometry_msgs/TwistWithCovarianceStamped"],
             Role::TrackingOdom | Role::WheelOdom | Role::GroundTruth => &["nav_msgs/Odometry"],
@@ -824,6 +866,7 @@ impl Role {
             Role::GnssVelocity => "topics.gnss_velocity",
             Role::TrackingOdom => "topics.tracking_odom",
             Role::WheelOdom => "topics.wheel_odom",
+            Role::GnssHeading => "topics.gnss_heading",
             Role::Camera => "topics.cameras",
             Role::TfStatic => "topics.tf_static",
             Role::Tf => "topics.tf",
@@ -1094,6 +1137,9 @@ fn collect(
         Role::WheelOdom => {
             ros::decode_odometry(m.data).map(|x| Decoded::Sensor(Message::WheelOdom(x)))
         }
+        Role::GnssHeading => {
+            ros::decode_heading(m.data).map(|x| Decoded::Sensor(Message::GnssHeading(x)))
+        }
         Role::GroundTruth => ros::decode_odometry(m.data).map(|x| {
             Decoded::Truth(PoseSample {
                 stamp: x.stamp,
@@ -1288,6 +1334,7 @@ fn rename_message(frames: &BTreeMap<String, String>, m: &mut Message) {
         }
         Message::Image(x) => rename(frames, &mut x.frame_id),
         Message::CameraInfo(x) => rename(frames, &mut x.frame_id),
+        Message::GnssHeading(x) => rename(frames, &mut x.frame_id),
     }
 }
 
@@ -1460,6 +1507,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
         (&t.gnss_velocity, Role::GnssVelocity),
         (&t.tracking_odom, Role::TrackingOdom),
         (&t.wheel_odom, Role::WheelOdom),
+        (&t.gnss_heading, Role::GnssHeading),
     ];
     // The roles the mapping names, each topic at most once; then the default topics of
     // the static transforms and the ground truth, where the mapping did not use them.
@@ -1904,6 +1952,7 @@ pub fn replay(file: &Path, opts: &ReplayOptions) -> Result<ReplayOutcome, Replay
             match &mut msg {
                 Message::Imu(imu) if cfg.imu.converts() => cfg.imu.convert(imu),
                 Message::GnssFix(fix) => cfg.gnss.apply(fix, origin_alt_m),
+                Message::GnssHeading(h) => cfg.gnss.apply_heading(h),
                 _ => {}
             }
             order.push(m.publish_time, msg, &mut feed);

@@ -835,3 +835,120 @@ fn a_requested_source_without_poses_fails_the_replay_by_name() {
         "{out}"
     );
 }
+
+#[test]
+fn a_dual_antenna_heading_starts_the_relative_yaw_filter_standing() {
+    let (tmp, recording, reference) = drive();
+    let ate = eif_ate(&reference);
+    // A moving-baseline receiver: the body's true heading + 0.3° noise at every fix,
+    // recorded as sensor_msgs/Imu (as u-blox drivers publish navheading), with the
+    // baseline mounted `mount` degrees counter-clockwise of forward. The AHRS heading is
+    // offset by 120° (yaw = "relative" ignores it).
+    let bytes = std::fs::read(&recording).unwrap();
+    let mut truth: Vec<(vinebench_msgs::Nanos, f64)> = Vec::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if m.channel.topic == "/ground_truth/odom" {
+            let o = ros::decode_odometry(&m.data).unwrap();
+            let x = o.pose.rotation * Vector3::x();
+            truth.push((o.stamp, x.y.atan2(x.x)));
+        }
+    }
+    let write = |mount: f64, out: &Path| {
+        let mut rng = Normal(5);
+        let mut w = mcap::Writer::new(std::io::BufWriter::new(std::fs::File::create(out).unwrap()))
+            .unwrap();
+        let mut heading_channel = None;
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            let mut data = m.data.to_vec();
+            match m.channel.topic.as_str() {
+                "/imu/data" => {
+                    let mut x = ros::decode_imu(&data).unwrap();
+                    x.orientation = x.orientation.map(|q| yaw(120.0) * q);
+                    data.clear();
+                    ros::encode_imu(&x, &mut data);
+                    heading_channel.get_or_insert_with(|| {
+                        std::sync::Arc::new(mcap::Channel {
+                            id: u16::MAX - 1,
+                            topic: "/gnss/heading".into(),
+                            ..(*m.channel).clone()
+                        })
+                    });
+                }
+                "/gnss/fix" => {
+                    let fix = ros::decode_nav_sat_fix(&data).unwrap();
+                    let k = truth.partition_point(|t| t.0 < fix.stamp);
+                    let psi = truth[k.min(truth.len() - 1)].1;
+                    let baseline = psi - mount.to_radians() + rng.sample() * 0.3f64.to_radians();
+                    let h = vinebench_msgs::GnssHeadingMsg {
+                        stamp: fix.stamp,
+                        frame_id: fix.frame_id.clone(),
+                        heading_rad: baseline,
+                        variance_rad2: 0.3f64.to_radians().powi(2),
+                    };
+                    let mut hb = Vec::new();
+                    ros::encode_imu(&ros::imu_of_heading(&h), &mut hb);
+                    w.write(&mcap::Message {
+                        channel: heading_channel.clone().unwrap(),
+                        data: Cow::Owned(hb),
+                        ..m.clone()
+                    })
+                    .unwrap();
+                }
+                _ => {}
+            }
+            w.write(&mcap::Message {
+                data: Cow::Owned(data),
+                ..m
+            })
+            .unwrap();
+        }
+        w.finish().unwrap();
+    };
+    let init_at = |r: &ReplayOutcome| -> (f64, String) {
+        let note = r.report.sources[0]
+            .notes
+            .iter()
+            .find(|n| n.starts_with("initialized at "))
+            .unwrap()
+            .clone();
+        let t: f64 = note["initialized at ".len()..]
+            .split_whitespace()
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        (t, note)
+    };
+    let relative = format!("{TOPICS}[imu]\nyaw = \"relative\"\n");
+    let plain = tmp.path().join("heading0.mcap");
+    write(0.0, &plain);
+    // Without the heading mapped: the filter waits for the robot to drive.
+    let course = replay_with(&plain, &relative, &tmp.path().join("course"));
+    let (t_course, _) = init_at(&course);
+    let with_heading = relative.replace(
+        "[estimators]",
+        "gnss_heading = \"/gnss/heading\"\n[estimators]",
+    );
+    let r = replay_with(&plain, &with_heading, &tmp.path().join("heading"));
+    let (t_heading, note) = init_at(&r);
+    let a = eif_ate(&r);
+    eprintln!(
+        "dual-antenna heading: starts {:.1} s earlier (standing) than from the course; EIF ATE \
+         {a:.4} m (course only {:.4} m, true-north AHRS {ate:.4} m); {note}",
+        t_course - t_heading,
+        eif_ate(&course)
+    );
+    assert!(note.contains("dual-antenna heading"), "{note}");
+    assert!(t_course - t_heading > 1.0, "{t_heading} vs {t_course}");
+    assert!(r.report.sources[0].used["gnss_heading"] > 300);
+    assert!(a < 2.0 * ate + 0.02, "{a} vs {ate}");
+    // A baseline mounted across the robot (pointing left) with its offset declared.
+    let across = tmp.path().join("heading90.mcap");
+    write(90.0, &across);
+    let mapping = format!("{with_heading}[gnss]\nheading_offset_deg = 90.0\n");
+    let r90 = replay_with(&across, &mapping, &tmp.path().join("heading90"));
+    let a90 = eif_ate(&r90);
+    assert!((a90 - a).abs() < 0.005, "{a90} vs {a}");
+}

@@ -209,6 +209,23 @@ pub enum Message {
     Image(ImageMsg),
     /// A camera's calibration, published with each of its images.
     CameraInfo(CameraInfoMsg),
+    /// A dual-antenna GNSS heading.
+    GnssHeading(GnssHeadingMsg),
+}
+
+/// A dual-antenna (moving-baseline) GNSS heading, converted to the body: the yaw of the
+/// body's forward axis in the world (ENU), counter-clockwise from east (the receiver's
+/// baseline direction plus the mounting offset between baseline and body).
+#[derive(Clone, Debug, PartialEq)]
+pub struct GnssHeadingMsg {
+    /// Sample time.
+    pub stamp: Nanos,
+    /// The receiver's frame (the main antenna).
+    pub frame_id: FrameId,
+    /// Heading of the body's forward axis, rad counter-clockwise from east.
+    pub heading_rad: f64,
+    /// Its variance, rad².
+    pub variance_rad2: f64,
 }
 
 /// A message as it reached the computer: `arrival` is at or after the message's stamp
@@ -246,6 +263,7 @@ impl Message {
             Message::TrackingOdom(m) | Message::WheelOdom(m) => m.stamp,
             Message::Image(m) => m.stamp,
             Message::CameraInfo(m) => m.stamp,
+            Message::GnssHeading(m) => m.stamp,
         }
     }
 
@@ -259,6 +277,7 @@ impl Message {
             Message::WheelOdom(_) => "/wheel/odom",
             Message::Image(m) => &m.topic,
             Message::CameraInfo(m) => &m.topic,
+            Message::GnssHeading(_) => "/gnss/heading",
         }
     }
 
@@ -346,6 +365,14 @@ impl Message {
             Message::CameraInfo(m) => {
                 if !(m.d.iter().chain(&m.k).chain(&m.r).chain(&m.p)).all(|c| c.is_finite()) {
                     return Err(bad("k, d, r or p", NOT_FINITE));
+                }
+            }
+            Message::GnssHeading(m) => {
+                if !m.heading_rad.is_finite() {
+                    return Err(bad("heading_rad", NOT_FINITE));
+                }
+                if !(m.variance_rad2.is_finite() && m.variance_rad2 > 0.0) {
+                    return Err(bad("variance_rad2", "is not a positive finite variance"));
                 }
             }
         }

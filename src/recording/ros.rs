@@ -280,6 +280,51 @@ pub fn encode_imu(m: &ImuMsg, buf: &mut Vec<u8>) {
     cov3(&mut w, &m.linear_acceleration_covariance);
 }
 
+/// A dual-antenna heading as `sensor_msgs/Imu` (how u-blox and Septentrio drivers publish
+/// one): orientation = the yaw about world z, roll and pitch unknown (variance 1e6), no
+/// rates or accelerations (covariance element 0 = −1, REP-145).
+pub fn imu_of_heading(m: &vinebench_msgs::GnssHeadingMsg) -> ImuMsg {
+    let mut no_data = Matrix3::zeros();
+    no_data[(0, 0)] = -1.0;
+    ImuMsg {
+        stamp: m.stamp,
+        frame_id: m.frame_id.clone(),
+        orientation: Some(UnitQuaternion::from_axis_angle(
+            &Vector3::z_axis(),
+            m.heading_rad,
+        )),
+        orientation_covariance: Matrix3::from_diagonal(&Vector3::new(1e6, 1e6, m.variance_rad2)),
+        angular_velocity: Vector3::zeros(),
+        angular_velocity_covariance: no_data,
+        linear_acceleration: Vector3::zeros(),
+        linear_acceleration_covariance: no_data,
+    }
+}
+
+/// A dual-antenna heading recorded as `sensor_msgs/Imu`: the yaw of its orientation (ENU,
+/// counter-clockwise from east) and the yaw variance (NaN when the message gives none).
+pub fn decode_heading(payload: &[u8]) -> Result<vinebench_msgs::GnssHeadingMsg, CdrError> {
+    let imu = decode_imu(payload)?;
+    let Some(q) = imu.orientation else {
+        return Err(CdrError::Invalid {
+            field: "orientation",
+            problem: "orientation_covariance[0] is -1 (no orientation): no heading".into(),
+        });
+    };
+    let x = q * Vector3::x();
+    let var = imu.orientation_covariance[(2, 2)];
+    Ok(vinebench_msgs::GnssHeadingMsg {
+        stamp: imu.stamp,
+        frame_id: imu.frame_id,
+        heading_rad: x.y.atan2(x.x),
+        variance_rad2: if var.is_finite() && var > 0.0 {
+            var
+        } else {
+            f64::NAN
+        },
+    })
+}
+
 /// Decodes a `sensor_msgs/Imu`. `orientation_covariance[0] = -1` means no orientation
 /// (and a zero covariance).
 pub fn decode_imu(payload: &[u8]) -> Result<ImuMsg, CdrError> {

@@ -284,6 +284,9 @@ impl<W: Write + Seek> McapSink<W> {
                     ros::encode_camera_info(m, b)
                 })
             }
+            Message::GnssHeading(m) => self.write_with(topic, &schema::IMU, stamp, arrival, |b| {
+                ros::encode_imu(&ros::imu_of_heading(m), b)
+            }),
         }
     }
 

@@ -331,6 +331,7 @@ struct Config {
     /// rad.
     course_floor: f64,
     use_wheel: bool,
+    use_gnss_heading: bool,
     wheel_speed_sigma: f64,
     wheel_slip: f64,
     wheel_lateral_sigma: f64,
@@ -449,6 +450,7 @@ impl Config {
             course_floor: positive("course_sigma_floor_deg", p.course_sigma_floor_deg)?
                 .to_radians(),
             use_wheel: p.use_wheel_odometry,
+            use_gnss_heading: p.use_gnss_heading,
             wheel_speed_sigma: positive("wheel_speed_sigma_mps", p.wheel_speed_sigma_mps)?,
             wheel_slip: nonneg("wheel_slip_fraction", p.wheel_slip_fraction)?,
             wheel_lateral_sigma: positive("wheel_lateral_sigma_mps", p.wheel_lateral_sigma_mps)?,
@@ -530,12 +532,15 @@ enum Pending {
         /// Error covariance about the world axes, rad².
         cov_world: Matrix3<f64>,
     },
-    /// A heading from the course over ground (`yaw = "relative"`).
+    /// A heading from the course over ground (`yaw = "relative"`, kind 4) or a
+    /// dual-antenna receiver (kind 6).
     Course {
         /// Heading of the body's forward axis, rad counter-clockwise from east.
         z: f64,
         /// Its variance, rad².
         var: f64,
+        /// Index in [`KIND_NAMES`].
+        kind: usize,
     },
     Tracking {
         /// The moving frame of the odometry.
@@ -594,8 +599,9 @@ struct PreInit {
     imu: Option<(ImuSample, UnitQuaternion<f64>, Matrix3<f64>)>,
     fix: Option<GnssFixMsg>,
     vel: Option<GnssVelocityMsg>,
-    /// The newest course over ground: stamp, heading (rad), variance (rad²).
-    course: Option<(Nanos, f64, f64)>,
+    /// The newest course over ground or dual-antenna heading: stamp, heading (rad),
+    /// variance (rad²), which of the two.
+    course: Option<(Nanos, f64, f64, &'static str)>,
     last_stamp: Option<Nanos>,
 }
 
@@ -750,16 +756,21 @@ fn symmetrize(m: &mut Mat15) {
 /// Per-kind counts of one correction group.
 #[derive(Default)]
 struct GroupCounts {
-    kinds: [u64; 6],
+    kinds: [u64; 7],
 }
-const KIND_NAMES: [&str; 6] = [
+const KIND_NAMES: [&str; 7] = [
     "gnss_fix",
     "gnss_velocity",
     "imu_orientation",
     "tracking_odom",
     "gnss_course",
     "wheel_odom",
+    "gnss_heading",
 ];
+/// What a heading before the start came from (init note).
+const COURSE: &str = "course over ground";
+/// See [`COURSE`].
+const HEADING: &str = "dual-antenna heading";
 
 impl Eif {
     /// A filter with `[estimators.eif]` parameters, the robot's static transforms and the
@@ -887,7 +898,7 @@ impl Eif {
                             self.course
                                 .chord(&self.cfg, m.stamp, &p, &m.position_covariance)
                         {
-                            self.pre.course = Some((m.stamp, z, var));
+                            self.pre.course = Some((m.stamp, z, var, COURSE));
                         }
                     }
                     self.pre.fix = Some(m.clone());
@@ -898,12 +909,19 @@ impl Eif {
                 if self.cfg.relative_yaw
                     && let Some((z, var)) = self.course.velocity(&self.cfg, m)
                 {
-                    self.pre.course = Some((m.stamp, z, var));
+                    self.pre.course = Some((m.stamp, z, var, COURSE));
                 }
                 self.pre.vel = Some(m.clone());
                 self.stats.count_rejected("before_init");
             }
             Message::TrackingOdom(_) => self.stats.count_rejected("before_init"),
+            Message::GnssHeading(m) => {
+                if self.cfg.use_gnss_heading {
+                    // A dual-antenna heading is better than a course: it holds standing.
+                    self.pre.course = Some((m.stamp, m.heading_rad, m.variance_rad2, HEADING));
+                    self.stats.count_rejected("before_init");
+                }
+            }
             Message::WheelOdom(_) if self.cfg.use_wheel => self.stats.count_rejected("before_init"),
             Message::WheelOdom(_) | Message::Image(_) | Message::CameraInfo(_) => {}
         }
@@ -926,7 +944,7 @@ impl Eif {
         if self.cfg.relative_yaw {
             // The heading from the course over ground of the same epoch; roll and pitch
             // from the AHRS (a rotation about world z changes neither).
-            let Some((tc, z, var)) = self.pre.course else {
+            let Some((tc, z, var, what)) = self.pre.course else {
                 return;
             };
             if (tc - fix.stamp).as_nanos().abs() > MAX_INIT_LAG.as_nanos() || tc > imu.t {
@@ -941,7 +959,7 @@ impl Eif {
             }
             q_cov[(2, 2)] = var;
             heading_note = format!(
-                ", heading {:.1}° from the course over ground (±{:.1}°)",
+                ", heading {:.1}° from the {what} (±{:.1}°)",
                 z.to_degrees(),
                 var.sqrt().to_degrees()
             );
@@ -1154,7 +1172,7 @@ impl Eif {
                         reject("numerical_skip");
                     }
                 }
-                Pending::Course { z, var } => {
+                Pending::Course { z, var, kind } => {
                     let forward = imu_from_body_rot * Vector3::x();
                     // Driving backwards: the track points the other way.
                     let mut z = *z;
@@ -1166,7 +1184,7 @@ impl Eif {
                     let lin = measurement::course(&nav, &forward, z);
                     let r = SMatrix::<f64, 1, 1>::new(*var);
                     if add_information(&mut lambda_add, &mut eta, &lin, &r).is_some() {
-                        counts.kinds[4] += 1;
+                        counts.kinds[*kind] += 1;
                         n_info += 1;
                     } else {
                         reject("numerical_skip");
@@ -1437,7 +1455,7 @@ impl Eif {
                     .chord(&self.cfg, m.stamp, &p, &m.position_covariance)
             {
                 self.pending
-                    .push_back((m.stamp, Pending::Course { z, var }));
+                    .push_back((m.stamp, Pending::Course { z, var, kind: 4 }));
             }
         }
         if !self.cfg.use_gnss_position {
@@ -1461,7 +1479,7 @@ impl Eif {
             && let Some((z, var)) = self.course.velocity(&self.cfg, m)
         {
             self.pending
-                .push_back((m.stamp, Pending::Course { z, var }));
+                .push_back((m.stamp, Pending::Course { z, var, kind: 4 }));
         }
         if !self.cfg.use_gnss_velocity {
             return;
@@ -1683,6 +1701,18 @@ impl Estimator for Eif {
             Message::GnssVelocity(m) => self.on_velocity(m),
             Message::TrackingOdom(m) => self.on_tracking(m),
             Message::WheelOdom(m) => self.on_wheel(m),
+            Message::GnssHeading(m) => {
+                if self.cfg.use_gnss_heading {
+                    self.pending.push_back((
+                        m.stamp,
+                        Pending::Course {
+                            z: m.heading_rad,
+                            var: m.variance_rad2,
+                            kind: 6,
+                        },
+                    ));
+                }
+            }
             Message::Image(_) | Message::CameraInfo(_) => {}
         }
     }

@@ -115,6 +115,8 @@ pub struct EifParams {
     pub course_min_baseline_m: f64,
     /// Noise floor of a course-over-ground heading, degrees.
     pub course_sigma_floor_deg: f64,
+    /// Use a dual-antenna GNSS heading (`/gnss/heading`) as a heading correction.
+    pub use_gnss_heading: bool,
     /// Use the wheel odometry's body-frame velocity (with the non-holonomic constraint).
     pub use_wheel_odometry: bool,
     /// Wheel speed white noise (1σ), m/s.

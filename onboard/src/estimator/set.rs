@@ -366,6 +366,7 @@ fn checked_frame(msg: &Message) -> Option<(&'static str, &str)> {
         Message::GnssFix(m) => Some(("frame_id", m.frame_id.as_str())),
         Message::GnssVelocity(m) => Some(("frame_id", m.frame_id.as_str())),
         Message::TrackingOdom(m) => Some(("child_frame_id", m.child_frame_id.as_str())),
+        Message::GnssHeading(m) => Some(("/gnss/heading", m.frame_id.as_str())),
         Message::WheelOdom(_) | Message::Image(_) | Message::CameraInfo(_) => None,
     }
 }
