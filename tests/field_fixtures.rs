@@ -98,6 +98,23 @@ fn replay_with(recording: &Path, mapping: &str, out: &Path) -> ReplayOutcome {
     .unwrap_or_else(|e| panic!("{}: {e}", out.display()))
 }
 
+/// The error of a replay through `mapping` that must fail (the mapping is written beside
+/// `out`).
+fn replay_error(recording: &Path, mapping: &str, out: &Path) -> String {
+    let map = out.with_extension("toml");
+    std::fs::write(&map, mapping).unwrap();
+    replay(
+        recording,
+        &ReplayOptions {
+            config: Some(map),
+            out_dir: Some(out.to_path_buf()),
+            ..ReplayOptions::default()
+        },
+    )
+    .unwrap_err()
+    .to_string()
+}
+
 /// The EIF's ATE RMSE against the recorded truth, m (infinite when it has none).
 fn eif_ate(r: &ReplayOutcome) -> f64 {
     let eif = r.report.sources.iter().find(|s| s.name == "eif").unwrap();
@@ -189,18 +206,7 @@ fn a_heading_offset_by_any_angle_is_harmless_with_relative_yaw() {
         "{}[estimators.eif]\norientation_yaw = \"absolute\"\n[imu]\nyaw = \"relative\"\n",
         TOPICS.replace("[estimators]\nrun = [\"eif\"]\n", "[estimators]\n")
     );
-    let map = tmp.path().join("both.toml");
-    std::fs::write(&map, both).unwrap();
-    let e = replay(
-        &recording,
-        &ReplayOptions {
-            config: Some(map),
-            out_dir: Some(tmp.path().join("both")),
-            ..ReplayOptions::default()
-        },
-    )
-    .unwrap_err()
-    .to_string();
+    let e = replay_error(&recording, &both, &tmp.path().join("both"));
     assert!(
         e.contains("imu.yaw") && e.contains("orientation_yaw"),
         "{e}"
@@ -631,18 +637,11 @@ fn a_consumer_mems_imu_is_measured_while_standing_and_named_by_its_datasheet() {
         reference.report.sources[0].notes
     );
     // An unknown profile is refused by name.
-    let map = tmp.path().join("bad-profile.toml");
-    std::fs::write(&map, format!("{TOPICS}[imu]\nprofile = \"mpu9250\"\n")).unwrap();
-    let e = replay(
+    let e = replay_error(
         &mems,
-        &ReplayOptions {
-            config: Some(map),
-            out_dir: Some(tmp.path().join("bad-profile")),
-            ..ReplayOptions::default()
-        },
-    )
-    .unwrap_err()
-    .to_string();
+        &format!("{TOPICS}[imu]\nprofile = \"mpu9250\"\n"),
+        &tmp.path().join("bad-profile"),
+    );
     assert!(
         e.contains("imu_profile") && e.contains("\"mpu-9250\""),
         "{e}"
@@ -749,18 +748,7 @@ fn the_robots_urdf_supplies_the_extrinsics_a_recording_lacks() {
         (topic != "/tf_static").then(|| data.to_vec())
     });
     // Without extrinsics replay refuses, naming what is missing.
-    let map = tmp.path().join("none.toml");
-    std::fs::write(&map, TOPICS).unwrap();
-    let e = replay(
-        &bare,
-        &ReplayOptions {
-            config: Some(map),
-            out_dir: Some(tmp.path().join("none")),
-            ..ReplayOptions::default()
-        },
-    )
-    .unwrap_err()
-    .to_string();
+    let e = replay_error(&bare, TOPICS, &tmp.path().join("none"));
     assert!(e.contains("no static transforms"), "{e}");
     // The robot's URDF (the same file the simulator read) fills them in.
     let urdf = Path::new(env!("CARGO_MANIFEST_DIR")).join("robot-models/tracked-sensorbox.urdf");
@@ -780,18 +768,11 @@ fn the_robots_urdf_supplies_the_extrinsics_a_recording_lacks() {
             .contains("fixed joint(s)")
     );
     // A URDF that is not there is named with the key.
-    let map = tmp.path().join("missing.toml");
-    std::fs::write(&map, format!("urdf = \"nowhere.urdf\"\n{TOPICS}")).unwrap();
-    let e = replay(
+    let e = replay_error(
         &bare,
-        &ReplayOptions {
-            config: Some(map),
-            out_dir: Some(tmp.path().join("missing")),
-            ..ReplayOptions::default()
-        },
-    )
-    .unwrap_err()
-    .to_string();
+        &format!("urdf = \"nowhere.urdf\"\n{TOPICS}"),
+        &tmp.path().join("missing"),
+    );
     assert!(e.contains("`urdf`") && e.contains("nowhere.urdf"), "{e}");
 }
 

@@ -723,6 +723,19 @@ fn correlation_inflation(tau_s: f64, dt: Nanos) -> f64 {
     (1.0 + r) / (1.0 - r)
 }
 
+/// The squared Mahalanobis distance `yᵀS⁻¹y` of a measurement's residual, `S = HPHᵀ + R`
+/// (the NIS); `None` when `S` is not positive definite or the result is NaN.
+fn mahalanobis2<const M: usize>(
+    lin: &Linearized<M>,
+    p: &Mat15,
+    r: &SMatrix<f64, M, M>,
+) -> Option<f64> {
+    let s = lin.h * p * lin.h.transpose() + r;
+    let c = Cholesky::new(s)?;
+    let d2 = lin.residual.dot(&c.solve(&lin.residual));
+    (!d2.is_nan()).then_some(d2)
+}
+
 /// Adds `Hᵀ R⁻¹ H` and `Hᵀ R⁻¹ y` to the information sums; `None` when `R` is not
 /// positive definite.
 fn add_information<const M: usize>(
@@ -1094,16 +1107,10 @@ impl Eif {
                 Pending::GnssPosition { z, cov, r_ia } => {
                     let lin = measurement::gnss_position(&nav, r_ia, z);
                     let r = cov + Matrix3::identity() * (POSITION_FLOOR_M * POSITION_FLOOR_M);
-                    let s = lin.h * f.core.cov * lin.h.transpose() + r;
-                    let Some(c) = Cholesky::new(s) else {
+                    let Some(d2) = mahalanobis2(&lin, &f.core.cov, &r) else {
                         reject("numerical_skip");
                         continue;
                     };
-                    let d2 = lin.residual.dot(&c.solve(&lin.residual));
-                    if d2.is_nan() {
-                        reject("numerical_skip");
-                        continue;
-                    }
                     // The consistency record: every fix's NIS against the receiver's and
                     // the filter's claimed uncertainty, gated or not.
                     nis.push(d2);
@@ -1200,16 +1207,10 @@ impl Eif {
                     let r = Matrix3::from_diagonal(var)
                         * correlation_inflation(cfg.wheel_tau, f.t - f.last_wheel_used);
                     if cfg.wheel_gate_chi2 > 0.0 {
-                        let s = lin.h * f.core.cov * lin.h.transpose() + r;
-                        let Some(c) = Cholesky::new(s) else {
+                        let Some(d2) = mahalanobis2(&lin, &f.core.cov, &r) else {
                             reject("numerical_skip");
                             continue;
                         };
-                        let d2 = lin.residual.dot(&c.solve(&lin.residual));
-                        if d2.is_nan() {
-                            reject("numerical_skip");
-                            continue;
-                        }
                         if d2 > cfg.wheel_gate_chi2 {
                             f.wheel_gated_in_a_row += 1;
                             if f.wheel_gated_in_a_row <= WHEEL_GATE_RECOVERY {

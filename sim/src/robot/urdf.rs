@@ -117,12 +117,7 @@ pub(super) fn fixed_joints(
     text: &str,
     source: &str,
 ) -> Result<Vec<(String, String, Isometry3<f64>)>, RobotError> {
-    let doc = xml::document(text, source)?;
-    let positions = xml::check(&doc, source)?;
-    let robot = urdf_rs::read_from_string(text).map_err(|e| RobotError::Parse {
-        file: source.to_string(),
-        message: e.to_string(),
-    })?;
+    let (doc, positions, robot) = read(text, source)?;
     let cx = Ctx {
         source,
         doc: &doc,
@@ -134,17 +129,7 @@ pub(super) fn fixed_joints(
         .iter()
         .filter(|j| j.joint_type == urdf_rs::JointType::Fixed)
     {
-        for (what, v) in [("xyz", &j.origin.xyz), ("rpy", &j.origin.rpy)] {
-            if !finite3(v) {
-                return Err(cx.invalid(
-                    joint_el(&j.name),
-                    format!(
-                        "<origin {what}> must be three finite numbers, found {:?}",
-                        v.0
-                    ),
-                ));
-            }
-        }
+        check_origin(&cx, j)?;
         out.push((
             j.parent.link.clone(),
             j.child.link.clone(),
@@ -154,16 +139,40 @@ pub(super) fn fixed_joints(
     Ok(out)
 }
 
-/// Parses and validates URDF text (see the module documentation of [`super`]).
-pub(super) fn parse(text: &str, source: &str) -> Result<RobotModel, RobotError> {
-    // The XML checks first: limits, located errors, and nothing that urdf-rs's recursive
-    // tree could overflow the stack with.
+/// Reads URDF text: the XML checks first (limits, located errors, and nothing that
+/// urdf-rs's recursive tree could overflow the stack with), then urdf-rs.
+fn read<'i>(
+    text: &'i str,
+    source: &str,
+) -> Result<(roxmltree::Document<'i>, Positions, urdf_rs::Robot), RobotError> {
     let doc = xml::document(text, source)?;
     let positions = xml::check(&doc, source)?;
     let robot = urdf_rs::read_from_string(text).map_err(|e| RobotError::Parse {
         file: source.to_string(),
         message: e.to_string(),
     })?;
+    Ok((doc, positions, robot))
+}
+
+/// A joint's `<origin>` must be finite.
+fn check_origin(cx: &Ctx, j: &urdf_rs::Joint) -> Result<(), RobotError> {
+    for (what, v) in [("xyz", &j.origin.xyz), ("rpy", &j.origin.rpy)] {
+        if !finite3(v) {
+            return Err(cx.invalid(
+                joint_el(&j.name),
+                format!(
+                    "<origin {what}> must be three finite numbers, found {:?}",
+                    v.0
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Parses and validates URDF text (see the module documentation of [`super`]).
+pub(super) fn parse(text: &str, source: &str) -> Result<RobotModel, RobotError> {
+    let (doc, positions, robot) = read(text, source)?;
     let cx = Ctx {
         source,
         doc: &doc,
@@ -177,17 +186,7 @@ pub(super) fn parse(text: &str, source: &str) -> Result<RobotModel, RobotError> 
     let mut parent_of: ParentOf = BTreeMap::new();
     for j in &robot.joints {
         let el = joint_el(&j.name);
-        for (what, v) in [("xyz", &j.origin.xyz), ("rpy", &j.origin.rpy)] {
-            if !finite3(v) {
-                return Err(cx.invalid(
-                    el,
-                    format!(
-                        "<origin {what}> must be three finite numbers, found {:?}",
-                        v.0
-                    ),
-                ));
-            }
-        }
+        check_origin(&cx, j)?;
         for (role, link) in [("parent", &j.parent.link), ("child", &j.child.link)] {
             if !links.contains(link.as_str()) {
                 return Err(cx.invalid(el, format!("{role} link `{link}` is not defined")));
