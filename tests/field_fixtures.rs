@@ -84,7 +84,12 @@ fn rewrite_imu(src: &Path, dst: &Path, f: impl Fn(&mut vinebench_msgs::ImuMsg)) 
     });
 }
 
-fn replay_with(recording: &Path, mapping: &str, out: &Path) -> ReplayOutcome {
+/// A replay of `recording` through `mapping` (written beside `out`) into `out`.
+fn try_replay(
+    recording: &Path,
+    mapping: &str,
+    out: &Path,
+) -> Result<ReplayOutcome, vinebench::replay::ReplayError> {
     let map = out.with_extension("toml");
     std::fs::write(&map, mapping).unwrap();
     replay(
@@ -95,24 +100,15 @@ fn replay_with(recording: &Path, mapping: &str, out: &Path) -> ReplayOutcome {
             ..ReplayOptions::default()
         },
     )
-    .unwrap_or_else(|e| panic!("{}: {e}", out.display()))
 }
 
-/// The error of a replay through `mapping` that must fail (the mapping is written beside
-/// `out`).
+fn replay_with(recording: &Path, mapping: &str, out: &Path) -> ReplayOutcome {
+    try_replay(recording, mapping, out).unwrap_or_else(|e| panic!("{}: {e}", out.display()))
+}
+
+/// The error of a replay that must fail.
 fn replay_error(recording: &Path, mapping: &str, out: &Path) -> String {
-    let map = out.with_extension("toml");
-    std::fs::write(&map, mapping).unwrap();
-    replay(
-        recording,
-        &ReplayOptions {
-            config: Some(map),
-            out_dir: Some(out.to_path_buf()),
-            ..ReplayOptions::default()
-        },
-    )
-    .unwrap_err()
-    .to_string()
+    try_replay(recording, mapping, out).unwrap_err().to_string()
 }
 
 /// The EIF's ATE RMSE against the recorded truth, m (infinite when it has none).

@@ -67,12 +67,7 @@ impl DeadReckoning {
         transforms: StaticTransforms,
         enu: LocalEnu,
     ) -> Result<DeadReckoning, EstimatorError> {
-        if transforms.body_frame.is_none() {
-            return Err(EstimatorError::MissingFrame {
-                frame: "<body frame>".to_string(),
-                estimator: "dead_reckoning",
-            });
-        }
+        super::require_body_frame(&transforms, "dead_reckoning")?;
         Ok(DeadReckoning {
             poser: GnssAhrsPoser::new(transforms.clone(), enu),
             transforms,

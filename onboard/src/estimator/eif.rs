@@ -795,12 +795,7 @@ impl Eif {
         enu: LocalEnu,
     ) -> Result<Eif, EstimatorError> {
         let cfg = Config::from_params(params)?;
-        if transforms.body_frame.is_none() {
-            return Err(EstimatorError::MissingFrame {
-                frame: "<body frame>".to_string(),
-                estimator: "eif",
-            });
-        }
+        super::require_body_frame(&transforms, "eif")?;
         Ok(Eif {
             cfg,
             transforms,

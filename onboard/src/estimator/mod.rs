@@ -197,6 +197,20 @@ impl EstimatorError {
     }
 }
 
+/// The error every estimator gives for static transforms without a body frame.
+fn require_body_frame(
+    transforms: &vinebench_msgs::StaticTransforms,
+    estimator: &'static str,
+) -> Result<(), EstimatorError> {
+    if transforms.body_frame.is_none() {
+        return Err(EstimatorError::MissingFrame {
+            frame: "<body frame>".to_string(),
+            estimator,
+        });
+    }
+    Ok(())
+}
+
 /// A trajectory source driven by messages in stamp order.
 pub trait Estimator {
     /// The source name used in file names and reports (`eif`, `gnss`, `tracking_camera`).

@@ -197,12 +197,7 @@ pub struct GnssOnly {
 impl GnssOnly {
     /// A GNSS-only source. Errors when the static transforms have no body frame.
     pub fn new(transforms: StaticTransforms, enu: LocalEnu) -> Result<GnssOnly, EstimatorError> {
-        if transforms.body_frame.is_none() {
-            return Err(EstimatorError::MissingFrame {
-                frame: "<body frame>".to_string(),
-                estimator: "gnss",
-            });
-        }
+        super::require_body_frame(&transforms, "gnss")?;
         Ok(GnssOnly {
             poser: GnssAhrsPoser::new(transforms, enu),
             stats: EstimatorStats::default(),
@@ -281,12 +276,7 @@ impl TrackingCameraOnly {
         transforms: StaticTransforms,
         enu: LocalEnu,
     ) -> Result<TrackingCameraOnly, EstimatorError> {
-        if transforms.body_frame.is_none() {
-            return Err(EstimatorError::MissingFrame {
-                frame: "<body frame>".to_string(),
-                estimator: "tracking_camera",
-            });
-        }
+        super::require_body_frame(&transforms, "tracking_camera")?;
         Ok(TrackingCameraOnly {
             poser: GnssAhrsPoser::new(transforms.clone(), enu),
             gnss_poses: Vec::new(),
