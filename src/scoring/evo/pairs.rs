@@ -158,6 +158,9 @@ pub fn by_path(poses: &[Pose], delta: f64, tol: f64, all_pairs: bool) -> Vec<(us
 /// the poses): 50 million, 800 MB.
 pub const MAX_ANGLE_PAIRS: usize = 50_000_000;
 
+/// Most iterations of the rotation extraction in [`by_angle`].
+const FROM_MATRIX_MAX_ITER: usize = 1000;
+
 /// Every `delta` radians of rotation.
 pub fn by_angle(
     poses: &[Pose],
@@ -172,8 +175,14 @@ pub fn by_angle(
         let quats: Vec<[f64; 4]> = poses
             .iter()
             .map(|p| {
-                let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(
+                // Bounded: nalgebra's `from_matrix` iterates until it converges, which a
+                // damaged pose (entries near f64::MAX) never does. A rotation converges in
+                // far fewer steps, so the result is the same for every real pose.
+                let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_eps(
                     &lie::rotation(p),
+                    f64::EPSILON,
+                    FROM_MATRIX_MAX_ITER,
+                    Rotation3::identity(),
                 ));
                 [q.w, q.i, q.j, q.k]
             })
@@ -217,6 +226,20 @@ mod tests {
         z.iter()
             .map(|&z| lie::se3(&Matrix3::identity(), &Vector3::new(0.0, 0.0, z)))
             .collect()
+    }
+
+    #[test]
+    fn extreme_poses_do_not_hang_the_angle_pairs() {
+        // A damaged file's pose (entries near f64::MAX or infinite) once kept
+        // `Rotation3::from_matrix` iterating for ever (found by tests/fuzz_inputs.rs).
+        let mut poses = at_z(&[0.0, 1.0, 2.0]);
+        for (k, v) in [f64::MAX, f64::INFINITY, -1e300].into_iter().enumerate() {
+            poses[k][(0, 1)] = v;
+            poses[k][(1, 0)] = -v;
+        }
+        for all in [true, false] {
+            let _ = by_angle(&poses, 0.1, 0.05, all);
+        }
     }
 
     #[test]
