@@ -158,8 +158,8 @@ pub fn by_path(poses: &[Pose], delta: f64, tol: f64, all_pairs: bool) -> Vec<(us
 /// the poses): 50 million, 800 MB.
 pub const MAX_ANGLE_PAIRS: usize = 50_000_000;
 
-/// Most iterations of the rotation extraction in [`by_angle`].
-const FROM_MATRIX_MAX_ITER: usize = 1000;
+/// Most iterations of the SVD in [`by_angle`] (a 3×3 converges in a handful).
+const SVD_MAX_ITER: usize = 1000;
 
 /// Every `delta` radians of rotation.
 pub fn by_angle(
@@ -175,15 +175,24 @@ pub fn by_angle(
         let quats: Vec<[f64; 4]> = poses
             .iter()
             .map(|p| {
-                // Bounded: nalgebra's `from_matrix` iterates until it converges, which a
-                // damaged pose (entries near f64::MAX) never does. A rotation converges in
-                // far fewer steps, so the result is the same for every real pose.
-                let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_eps(
-                    &lie::rotation(p),
-                    f64::EPSILON,
-                    FROM_MATRIX_MAX_ITER,
-                    Rotation3::identity(),
-                ));
+                // The nearest rotation (polar factor U·Vᵀ, as scipy orthogonalises), by an
+                // SVD with bounded iterations: nalgebra's iterative `from_matrix` never
+                // returns for some damaged poses (a zero or overflowing rotation block:
+                // its perturbation loop compares equal norms for ever). A pose without a
+                // proper nearest rotation gets no angle (NaN: it pairs with nothing).
+                let r = lie::rotation(p);
+                let polar = r
+                    .norm_squared()
+                    .is_finite()
+                    .then(|| nalgebra::SVD::try_new(r, true, true, f64::EPSILON, SVD_MAX_ITER))
+                    .flatten()
+                    .and_then(|svd| Some(svd.u? * svd.v_t?))
+                    .filter(|m| m.determinant() > 0.0);
+                let Some(polar) = polar else {
+                    return [f64::NAN; 4];
+                };
+                let q =
+                    UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(polar));
                 [q.w, q.i, q.j, q.k]
             })
             .collect();
@@ -230,12 +239,18 @@ mod tests {
 
     #[test]
     fn extreme_poses_do_not_hang_the_angle_pairs() {
-        // A damaged file's pose (entries near f64::MAX or infinite) once kept
-        // `Rotation3::from_matrix` iterating for ever (found by tests/fuzz_inputs.rs).
-        let mut poses = at_z(&[0.0, 1.0, 2.0]);
+        // A damaged file's pose (entries near f64::MAX or infinite, or a zero rotation
+        // block) once kept `Rotation3::from_matrix` iterating for ever (found by
+        // tests/fuzz_inputs.rs).
+        let mut poses = at_z(&[0.0, 1.0, 2.0, 3.0]);
         for (k, v) in [f64::MAX, f64::INFINITY, -1e300].into_iter().enumerate() {
             poses[k][(0, 1)] = v;
             poses[k][(1, 0)] = -v;
+        }
+        for i in 0..3 {
+            for j in 0..3 {
+                poses[3][(i, j)] = 0.0;
+            }
         }
         for all in [true, false] {
             let _ = by_angle(&poses, 0.1, 0.05, all);
