@@ -1726,7 +1726,7 @@ impl Estimator for Eif {
             let profile = if p.name.is_empty() {
                 "the densities given".to_string()
             } else {
-                format!("imu_profile \"{}\"", p.name)
+                format!("imu_profile \"{}\" ({})", p.name, p.grade)
             };
             self.stats.notes.push(format!(
                 "IMU noise measured over {} s standing still: gyro {g:.4} °/s/√Hz, accel \
