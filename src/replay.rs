@@ -1335,6 +1335,7 @@ fn rename_message(frames: &BTreeMap<String, String>, m: &mut Message) {
         Message::Image(x) => rename(frames, &mut x.frame_id),
         Message::CameraInfo(x) => rename(frames, &mut x.frame_id),
         Message::GnssHeading(x) => rename(frames, &mut x.frame_id),
+        Message::GnssSky(x) => rename(frames, &mut x.frame_id),
     }
 }
 

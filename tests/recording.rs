@@ -146,6 +146,112 @@ fn nav_sat_fix_bytes_by_hand() {
 }
 
 #[test]
+fn no_fix_nav_sat_fix_has_an_unknown_covariance() {
+    // A no-fix epoch: status −1, position NaN, covariance zero and its type UNKNOWN (0),
+    // not KNOWN with zeros (a consumer would read that as a perfect fix).
+    let m = GnssFixMsg {
+        stamp: STAMP,
+        frame_id: FrameId::new("gnss_antenna"),
+        status: FixStatus::NoFix,
+        position: Geodetic {
+            lat_deg: f64::NAN,
+            lon_deg: f64::NAN,
+            alt_m: f64::NAN,
+        },
+        position_covariance: Matrix3::zeros(),
+    };
+    let bytes = enc(|v| ros::encode_nav_sat_fix(&m, v));
+    assert_eq!(bytes[4 + 25] as i8, -1); // status.status after the 4-byte CDR header
+    assert_eq!(*bytes.last().unwrap(), 0, "position_covariance_type");
+    // Read back as written (a no-fix covariance means nothing either way).
+    let back = ros::decode_nav_sat_fix(&bytes).unwrap();
+    assert_eq!(back.status, FixStatus::NoFix);
+    assert_eq!(back.position_covariance, Matrix3::zeros());
+}
+
+#[test]
+fn gps_fix_bytes_by_hand() {
+    use vinebench_msgs::{Dop, GnssSatellite, GnssSkyMsg, GnssSystem};
+    let sat = |system, prn, az, el, cn0: f64, tracked, used| GnssSatellite {
+        system,
+        prn,
+        azimuth_deg: az,
+        elevation_deg: el,
+        cn0_dbhz: cn0,
+        tracked,
+        used,
+        strong: false,
+        leaves: 0,
+        blocked: !tracked,
+    };
+    let dop = Dop {
+        gdop: 1.5,
+        pdop: 1.25,
+        hdop: 0.75,
+        vdop: 1.0,
+        tdop: 0.5,
+    };
+    let m = GnssSkyMsg {
+        stamp: STAMP,
+        frame_id: FrameId::new("ab"),
+        status: FixStatus::RtkFloat,
+        position: Geodetic {
+            lat_deg: 40.5,
+            lon_deg: 17.25,
+            alt_m: 50.0,
+        },
+        position_covariance: Matrix3::from_diagonal(&Vector3::new(0.04, 0.04, 0.09)),
+        dop: Some(dop),
+        corrections: true,
+        satellites: vec![
+            sat(GnssSystem::Gps, 5, 120.6, 45.4, 44.6, true, true),
+            sat(GnssSystem::Galileo, 3, 299.8, 12.2, 31.2, true, false),
+            sat(GnssSystem::Glonass, 7, 10.0, 5.0, f64::NAN, false, false),
+        ],
+    };
+    let mut b = Bytes::new();
+    b.i32(1).u32(500_000_007).u32(3).raw(b"ab\0"); // header, ends at 15
+    b.pad(1).i32(1).u32(500_000_007).u32(3).raw(b"ab\0"); // status.header: 16..31
+    b.pad(1).u16(1); // satellites_used at 32
+    b.pad(2).u32(1).i32(5); // satellite_used_prn at 36: [5]
+    b.u16(2); // satellites_visible at 44
+    b.pad(2).u32(2).i32(5).i32(303); // visible PRNs at 48 (Galileo 3 → 303)
+    b.u32(2).i32(45).i32(12); // elevations, whole degrees
+    b.u32(2).i32(121).i32(300); // azimuths
+    b.u32(2).i32(45).i32(31); // C/N0
+    assert_eq!(b.offset(), 96);
+    b.raw(&20i16.to_le_bytes()); // status = STATUS_RTK_FLOAT
+    b.u16(0).u16(0).u16(1); // motion, orientation, position source (SOURCE_GPS)
+    assert_eq!(b.offset(), 104);
+    b.f64s(&[40.5, 17.25, 50.0]);
+    b.f64s(&[f64::NAN; 7]); // track, speed, climb, pitch, roll, dip, time
+    b.f64s(&[1.5, 1.25, 0.75, 1.0, 0.5]); // gdop, pdop, hdop, vdop, tdop
+    // 95 % radii: 2.796·√(0.17/3), 2.448·√0.04, 1.960·√0.09.
+    b.f64s(&[
+        2.796 * ((0.04f64 + 0.04 + 0.09) / 3.0).sqrt(),
+        2.448 * ((0.04f64 + 0.04) / 2.0).sqrt(),
+        1.960 * 0.09f64.sqrt(),
+    ]);
+    b.f64s(&[f64::NAN; 7]);
+    b.f64s(&[0.04, 0.0, 0.0, 0.0, 0.04, 0.0, 0.0, 0.0, 0.09]);
+    b.u8(3);
+    let got = enc(|v| ros::encode_gps_fix(&m, v));
+    assert_eq!(got.len(), b.0.len());
+    for (i, (x, y)) in got.iter().zip(&b.0).enumerate() {
+        assert_eq!(x, y, "byte {i}");
+    }
+    let (status, used, visible, dops) = ros::decode_gps_fix_status(&got).unwrap();
+    assert_eq!((status, used), (20, vec![5]));
+    assert_eq!(visible[0], vec![5, 303]);
+    assert_eq!(dops, [1.5, 1.25, 0.75, 1.0, 0.5]);
+    assert_eq!(
+        schema::GPS_FIX.full_definition().matches("MSG: ").count(),
+        3,
+        "GPSFix, its Header (and Time) and GPSStatus"
+    );
+}
+
+#[test]
 fn twist_with_covariance_stamped_bytes_by_hand() {
     let m = GnssVelocityMsg {
         stamp: STAMP,

@@ -47,6 +47,11 @@ fn row_loop_rtk_outage_meets_its_expectations() {
 }
 
 #[test]
+fn tall_canopy_gnss_meets_its_expectations() {
+    check("tall-canopy-gnss.toml");
+}
+
+#[test]
 fn poor_gnss_meets_its_expectations() {
     check("poor-gnss.toml");
 }

@@ -30,8 +30,9 @@ pub mod trajectory;
 
 pub use frames::{FrameId, StaticTransforms};
 pub use msg::{
-    CameraInfoMsg, FixStatus, GnssFixMsg, GnssHeadingMsg, GnssVelocityMsg, ImageEncoding, ImageMsg,
-    ImuMsg, Message, OdometryMsg, TimedMessage,
+    CameraInfoMsg, Dop, FixStatus, GnssFixMsg, GnssHeadingMsg, GnssSatellite, GnssSkyMsg,
+    GnssSystem, GnssVelocityMsg, ImageEncoding, ImageMsg, ImuMsg, Message, OdometryMsg,
+    TimedMessage,
 };
 pub use time::Nanos;
 pub use trajectory::{PoseSample, Trajectory};

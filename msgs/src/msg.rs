@@ -211,6 +211,118 @@ pub enum Message {
     CameraInfo(CameraInfoMsg),
     /// A dual-antenna GNSS heading.
     GnssHeading(GnssHeadingMsg),
+    /// The GNSS receiver's sky: satellites, signal strengths, DOP and solution type
+    /// (diagnostics; recorded as `gps_msgs/GPSFix` on `/gnss/gpsfix`).
+    GnssSky(GnssSkyMsg),
+}
+
+/// A satellite system.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum GnssSystem {
+    /// GPS (NAVSTAR).
+    Gps,
+    /// Galileo.
+    Galileo,
+    /// GLONASS.
+    Glonass,
+    /// BeiDou.
+    Beidou,
+}
+
+impl GnssSystem {
+    /// The satellite's number in gpsd's numbering, as `gps_msgs` carries it: GPS PRN
+    /// 1–63 as is, GLONASS slot `n` as `64 + n`, Galileo PRN `n` as `300 + n`, BeiDou PRN
+    /// `n` as `400 + n`.
+    pub fn gpsd_prn(self, prn: u16) -> i32 {
+        match self {
+            GnssSystem::Gps => i32::from(prn),
+            GnssSystem::Glonass => 64 + i32::from(prn),
+            GnssSystem::Galileo => 300 + i32::from(prn),
+            GnssSystem::Beidou => 400 + i32::from(prn),
+        }
+    }
+
+    /// Lowercase name (`gps`, `galileo`, `glonass`, `beidou`).
+    pub fn name(self) -> &'static str {
+        match self {
+            GnssSystem::Gps => "gps",
+            GnssSystem::Galileo => "galileo",
+            GnssSystem::Glonass => "glonass",
+            GnssSystem::Beidou => "beidou",
+        }
+    }
+}
+
+/// One satellite above the horizon, as the receiver sees it at an epoch.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GnssSatellite {
+    /// Its system.
+    pub system: GnssSystem,
+    /// PRN within the system.
+    pub prn: u16,
+    /// Azimuth, degrees clockwise from north.
+    pub azimuth_deg: f64,
+    /// Elevation above the horizon, degrees.
+    pub elevation_deg: f64,
+    /// Carrier-to-noise density, dB-Hz (NaN when blocked).
+    pub cn0_dbhz: f64,
+    /// Tracked: its signal is strong enough to track (and it is above the mask).
+    pub tracked: bool,
+    /// Used in the position solution.
+    pub used: bool,
+    /// Strong enough to help fix RTK ambiguities.
+    pub strong: bool,
+    /// Leaves its line of sight crosses (0: clear or blocked by something solid).
+    pub leaves: u16,
+    /// Line of sight blocked by something solid (post, board, occluder, ground).
+    pub blocked: bool,
+}
+
+/// Dilutions of precision of a solution (single receiver clock).
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct Dop {
+    /// Geometric (position and time).
+    pub gdop: f64,
+    /// Position (3D).
+    pub pdop: f64,
+    /// Horizontal.
+    pub hdop: f64,
+    /// Vertical.
+    pub vdop: f64,
+    /// Time.
+    pub tdop: f64,
+}
+
+/// The sky of a GNSS receiver at one epoch: what `/gnss/fix` does not say.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GnssSkyMsg {
+    /// Epoch.
+    pub stamp: Nanos,
+    /// The receiver's frame (the antenna).
+    pub frame_id: FrameId,
+    /// Solution type of the epoch's fix.
+    pub status: FixStatus,
+    /// The fix (NaN without one).
+    pub position: crate::geodesy::Geodetic,
+    /// Its reported covariance, ENU, m² (as on `/gnss/fix`).
+    pub position_covariance: Matrix3<f64>,
+    /// DOP of the used satellites (None with fewer than four).
+    pub dop: Option<Dop>,
+    /// Whether RTK corrections are arriving.
+    pub corrections: bool,
+    /// Every satellite above the horizon.
+    pub satellites: Vec<GnssSatellite>,
+}
+
+impl GnssSkyMsg {
+    /// Satellites used in the solution.
+    pub fn used(&self) -> usize {
+        self.satellites.iter().filter(|s| s.used).count()
+    }
+    /// Satellites tracked.
+    pub fn tracked(&self) -> usize {
+        self.satellites.iter().filter(|s| s.tracked).count()
+    }
 }
 
 /// A dual-antenna (moving-baseline) GNSS heading, converted to the body: the yaw of the
@@ -264,6 +376,7 @@ impl Message {
             Message::Image(m) => m.stamp,
             Message::CameraInfo(m) => m.stamp,
             Message::GnssHeading(m) => m.stamp,
+            Message::GnssSky(m) => m.stamp,
         }
     }
 
@@ -278,6 +391,7 @@ impl Message {
             Message::Image(m) => &m.topic,
             Message::CameraInfo(m) => &m.topic,
             Message::GnssHeading(_) => "/gnss/heading",
+            Message::GnssSky(_) => "/gnss/gpsfix",
         }
     }
 
@@ -373,6 +487,19 @@ impl Message {
                 }
                 if !(m.variance_rad2.is_finite() && m.variance_rad2 > 0.0) {
                     return Err(bad("variance_rad2", "is not a positive finite variance"));
+                }
+            }
+            Message::GnssSky(m) => {
+                let ok = |s: &GnssSatellite| {
+                    s.azimuth_deg.is_finite()
+                        && (-90.0..=90.0).contains(&s.elevation_deg)
+                        && (s.cn0_dbhz.is_finite() || !s.tracked)
+                };
+                if !m.satellites.iter().all(ok) {
+                    return Err(bad(
+                        "satellites",
+                        "has a non-finite azimuth, elevation or C/N0",
+                    ));
                 }
             }
         }

@@ -626,8 +626,65 @@ pub struct GnssParams {
     pub rtk_float: GnssErrorParams,
     /// Error model of a single-point solution.
     pub single: GnssErrorParams,
+    /// `[sensors.gnss.sky]`: the solution from the satellites the antenna sees.
+    pub sky: GnssSkyParams,
 }
 default_from_section!(GnssParams, "sensors.gnss");
+
+/// `[sensors.gnss.sky]`: constellation, line of sight through the world, solution
+/// state (see `vinebench_sim::sensors::sky`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GnssSkyParams {
+    /// Derive the solution type and DOP from the sky (off: `nominal_status` and fault
+    /// windows alone).
+    pub enabled: bool,
+    /// Satellite systems: `"gps"`, `"galileo"`.
+    pub systems: Vec<String>,
+    /// Elevation mask, degrees.
+    pub elevation_mask_deg: f64,
+    /// C/N0 of a clear line of sight at the zenith, dB-Hz.
+    pub cn0_zenith_dbhz: f64,
+    /// C/N0 of a clear line of sight at the horizon, dB-Hz.
+    pub cn0_horizon_dbhz: f64,
+    /// Fading of each satellite's C/N0 (1σ), dB.
+    pub cn0_sigma_db: f64,
+    /// Correlation time of the fading, s.
+    pub cn0_correlation_time_s: f64,
+    /// Fraction of the signal power one leaf lets through.
+    pub leaf_transmission: f64,
+    /// Weakest C/N0 tracked and used, dB-Hz.
+    pub tracking_cn0_dbhz: f64,
+    /// Weakest C/N0 that helps fix RTK ambiguities, dB-Hz.
+    pub fix_cn0_dbhz: f64,
+    /// Largest PDOP that gives a position.
+    pub max_pdop: f64,
+    /// Satellites an RTK (float) solution needs.
+    pub rtk_min_satellites: u32,
+    /// Satellites at `fix_cn0_dbhz` or better that fixing ambiguities needs.
+    pub fix_min_satellites: u32,
+    /// Median time to fix after the fix conditions return, s.
+    pub time_to_fix_s: f64,
+    /// Log-normal σ of the time to fix.
+    pub time_to_fix_spread: f64,
+    /// A fix survives gaps in the fix conditions up to this long, s.
+    pub fix_hold_s: f64,
+    /// RTK corrections arrive.
+    pub corrections: bool,
+    /// HDOP at which the solution types' σ hold.
+    pub reference_hdop: f64,
+    /// VDOP at which the solution types' σ hold.
+    pub reference_vdop: f64,
+    /// Pseudorange multipath of a satellite seen through foliage (1σ), single-point, m.
+    pub multipath_single_m: f64,
+    /// The same for an RTK float solution, m.
+    pub multipath_float_m: f64,
+    /// The same for an RTK fixed solution (carrier-phase multipath), m.
+    pub multipath_fixed_m: f64,
+    /// Correlation time of multipath, s.
+    pub multipath_correlation_time_s: f64,
+}
+default_from_section!(GnssSkyParams, "sensors.gnss.sky");
 
 /// Error model of one GNSS solution type.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -78,6 +78,11 @@ impl<'a> CdrWriter<'a> {
         self.align(2);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
+    /// `int16`.
+    pub fn i16(&mut self, v: i16) {
+        self.align(2);
+        self.buf.extend_from_slice(&v.to_le_bytes());
+    }
     /// `uint32`.
     pub fn u32(&mut self, v: u32) {
         self.align(4);
@@ -191,6 +196,10 @@ impl<'a> CdrReader<'a> {
     /// `uint16`.
     pub fn u16(&mut self, field: &'static str) -> Result<u16, CdrError> {
         self.array(field).map(u16::from_le_bytes)
+    }
+    /// `int16`.
+    pub fn i16(&mut self, field: &'static str) -> Result<i16, CdrError> {
+        self.array(field).map(i16::from_le_bytes)
     }
     /// `uint32`.
     pub fn u32(&mut self, field: &'static str) -> Result<u32, CdrError> {

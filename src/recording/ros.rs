@@ -7,12 +7,22 @@
 //! - `sensor_msgs/Imu` without an orientation has `orientation_covariance[0] = -1`;
 //! - `sensor_msgs/NavSatFix.status.status` is −1 no fix, 0 stand-alone, 2 RTK (ground-based
 //!   augmentation, what RTK receivers' drivers publish for float and fixed solutions);
-//!   `position_covariance_type` is `KNOWN` (3) when every entry is finite, else `UNKNOWN`;
-//!   decoded, `UNKNOWN` (0) gives a NaN covariance (whatever numbers a driver put there:
-//!   many publish zeros) and `DIAGONAL_KNOWN` (2) keeps only the diagonal.
+//!   `position_covariance_type` is `KNOWN` (3) for a fix whose covariance is finite,
+//!   `UNKNOWN` (0) without a fix (status −1: position NaN, covariance zero) or with NaN;
+//!   decoded, `UNKNOWN` (0) gives a fix a NaN covariance (whatever numbers a driver put
+//!   there: many publish zeros; a no-fix message keeps its numbers) and `DIAGONAL_KNOWN`
+//!   (2) keeps only the diagonal.
 //!   vinebench keeps the float/fixed distinction in bit 15 of `status.service`
 //!   ([`SERVICE_VINEBENCH_RTK_FLOAT`]; the standard bits 0–3 name constellations, readers
-//!   ignore the rest); a field recording's status 2 reads as RTK fixed;
+//!   ignore the rest); a field recording's status 2 reads as RTK fixed. RTK fixed and
+//!   float are told apart as users of common drivers do: both are status 2, the fixed
+//!   solution's covariance is centimetres (1σ), the float's decimetres; vinebench's
+//!   `/gnss/gpsfix` (`gps_msgs/GPSFix`) says it outright: `status.status` 19
+//!   (`STATUS_RTK_FIX`) or 20 (`STATUS_RTK_FLOAT`);
+//! - `gps_msgs/GPSFix` ([`encode_gps_fix`]) carries the sky: satellites used and
+//!   visible (gpsd numbering: GPS PRN as is, Galileo `300 + PRN`), elevation, azimuth and
+//!   C/N0 (whole degrees and dB-Hz, as the message's `int32` fields hold them), the DOPs
+//!   (−1: unknown) and the same position and covariance as `/gnss/fix`;
 //! - a GNSS velocity is a `geometry_msgs/TwistWithCovarianceStamped` whose linear part is
 //!   the ENU velocity (as u-blox drivers publish), angular part and its covariance zero.
 //!
@@ -369,11 +379,139 @@ pub fn encode_nav_sat_fix(m: &GnssFixMsg, buf: &mut Vec<u8>) {
     w.f64(m.position.lon_deg);
     w.f64(m.position.alt_m);
     cov3(&mut w, &m.position_covariance);
-    w.u8(if m.position_covariance.iter().all(|c| c.is_finite()) {
+    w.u8(
+        if m.status != FixStatus::NoFix && m.position_covariance.iter().all(|c| c.is_finite()) {
+            COVARIANCE_TYPE_KNOWN
+        } else {
+            COVARIANCE_TYPE_UNKNOWN
+        },
+    );
+}
+
+/// `gps_msgs/GPSStatus.status` of a solution type.
+pub fn gps_status(status: FixStatus) -> i16 {
+    match status {
+        FixStatus::NoFix => -1,
+        FixStatus::Single => 0,
+        FixStatus::RtkFloat => 20,
+        FixStatus::RtkFixed => 19,
+    }
+}
+
+/// Encodes a receiver's sky ([`vinebench_msgs::GnssSkyMsg`]) as `gps_msgs/GPSFix`:
+/// tracked satellites are the visible ones, `position_source` is `SOURCE_GPS` with a fix.
+pub fn encode_gps_fix(m: &vinebench_msgs::GnssSkyMsg, buf: &mut Vec<u8>) {
+    let cov = &m.position_covariance;
+    let mut w = CdrWriter::new(buf);
+    header(&mut w, m.stamp, m.frame_id.as_str());
+    // GPSStatus
+    header(&mut w, m.stamp, m.frame_id.as_str());
+    let used: Vec<_> = m.satellites.iter().filter(|s| s.used).collect();
+    let visible: Vec<_> = m.satellites.iter().filter(|s| s.tracked).collect();
+    let prn = |s: &vinebench_msgs::GnssSatellite| s.system.gpsd_prn(s.prn);
+    w.u16(used.len() as u16);
+    w.seq_len(used.len());
+    for s in &used {
+        w.i32(prn(s));
+    }
+    w.u16(visible.len() as u16);
+    let ints = |w: &mut CdrWriter<'_>, f: &dyn Fn(&vinebench_msgs::GnssSatellite) -> i32| {
+        w.seq_len(visible.len());
+        for s in &visible {
+            w.i32(f(s));
+        }
+    };
+    ints(&mut w, &prn);
+    ints(&mut w, &|s| s.elevation_deg.round() as i32);
+    ints(&mut w, &|s| s.azimuth_deg.round() as i32);
+    ints(&mut w, &|s| s.cn0_dbhz.round() as i32);
+    w.i16(gps_status(m.status));
+    let has_fix = m.status != FixStatus::NoFix;
+    w.u16(0); // motion_source
+    w.u16(0); // orientation_source
+    w.u16(u16::from(has_fix)); // position_source: SOURCE_GPS
+    // GPSFix
+    w.f64(m.position.lat_deg);
+    w.f64(m.position.lon_deg);
+    w.f64(m.position.alt_m);
+    for _ in 0..7 {
+        w.f64(f64::NAN); // track, speed, climb, pitch, roll, dip, time: not given here
+    }
+    let d = m.dop;
+    for v in [
+        d.map(|d| d.gdop),
+        d.map(|d| d.pdop),
+        d.map(|d| d.hdop),
+        d.map(|d| d.vdop),
+        d.map(|d| d.tdop),
+    ] {
+        w.f64(v.unwrap_or(-1.0));
+    }
+    // 95 % radii from the covariance, each with the RMS σ per axis: spherical (χ²₃:
+    // 2.796σ), horizontal (χ²₂: 2.448σ), vertical (1.960σ).
+    let known = has_fix && cov.iter().all(|c| c.is_finite());
+    let (err, err_horz, err_vert) = if known {
+        (
+            2.796 * (cov.trace() / 3.0).sqrt(),
+            2.448 * ((cov[(0, 0)] + cov[(1, 1)]) / 2.0).sqrt(),
+            1.960 * cov[(2, 2)].sqrt(),
+        )
+    } else {
+        (f64::NAN, f64::NAN, f64::NAN)
+    };
+    w.f64(err);
+    w.f64(err_horz);
+    w.f64(err_vert);
+    for _ in 0..7 {
+        w.f64(f64::NAN); // err_track .. err_dip
+    }
+    cov3(&mut w, cov);
+    w.u8(if known {
         COVARIANCE_TYPE_KNOWN
     } else {
         COVARIANCE_TYPE_UNKNOWN
     });
+}
+
+/// Decodes a `gps_msgs/GPSFix`'s status: (`status.status`, used PRNs, visible PRNs,
+/// their elevations, azimuths and C/N0, `[gdop, pdop, hdop, vdop, tdop]`).
+#[allow(clippy::type_complexity)]
+pub fn decode_gps_fix_status(
+    payload: &[u8],
+) -> Result<(i16, Vec<i32>, [Vec<i32>; 4], [f64; 5]), CdrError> {
+    let mut r = CdrReader::new(payload)?;
+    read_header(&mut r)?;
+    read_header(&mut r)?;
+    let ints = |r: &mut CdrReader<'_>, field| -> Result<Vec<i32>, CdrError> {
+        let n = r.seq_len(field, 4)?;
+        (0..n).map(|_| r.i32(field)).collect()
+    };
+    let n_used = r.u16("status.satellites_used")?;
+    let used = ints(&mut r, "status.satellite_used_prn")?;
+    let n_visible = r.u16("status.satellites_visible")?;
+    let visible = [
+        ints(&mut r, "status.satellite_visible_prn")?,
+        ints(&mut r, "status.satellite_visible_z")?,
+        ints(&mut r, "status.satellite_visible_azimuth")?,
+        ints(&mut r, "status.satellite_visible_snr")?,
+    ];
+    if usize::from(n_used) != used.len() || usize::from(n_visible) != visible[0].len() {
+        return Err(CdrError::Invalid {
+            field: "status.satellites_used",
+            problem: "counts differ from the PRN lists".into(),
+        });
+    }
+    let status = r.i16("status.status")?;
+    r.u16("status.motion_source")?;
+    r.u16("status.orientation_source")?;
+    r.u16("status.position_source")?;
+    let _position_and_motion = r.f64s::<10>("latitude..time")?;
+    let dop = r.f64s::<5>("gdop..tdop")?;
+    let _err = r.f64s::<10>("err..err_dip")?;
+    let _cov = read_cov3(&mut r, "position_covariance")?;
+    r.u8("position_covariance_type")?;
+    finish(&r)?;
+    Ok((status, used, visible, dop))
 }
 
 /// Decodes a `sensor_msgs/NavSatFix` (status −1 or below: no fix; 0 and 1: stand-alone;
@@ -402,6 +540,9 @@ pub fn decode_nav_sat_fix(payload: &[u8]) -> Result<GnssFixMsg, CdrError> {
     };
     let mut position_covariance = read_cov3(&mut r, "position_covariance")?;
     match r.u8("position_covariance_type")? {
+        // Without a fix the covariance means nothing either way: kept as written, so a
+        // recording reads back bit for bit.
+        COVARIANCE_TYPE_UNKNOWN if status == FixStatus::NoFix => {}
         COVARIANCE_TYPE_UNKNOWN => position_covariance.fill(f64::NAN),
         COVARIANCE_TYPE_DIAGONAL_KNOWN => {
             position_covariance = Matrix3::from_diagonal(&position_covariance.diagonal());

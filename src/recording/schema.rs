@@ -161,6 +161,40 @@ pub static NAV_SAT_FIX: RosType = RosType {
            uint8 position_covariance_type\n",
     deps: &[&HEADER, &NAV_SAT_STATUS],
 };
+/// `gps_msgs/GPSStatus` (ROS 2 `gps_umd`).
+pub static GPS_STATUS: RosType = RosType {
+    short: "gps_msgs/GPSStatus",
+    text: "std_msgs/Header header\n\
+           uint16 satellites_used\nint32[] satellite_used_prn\n\
+           uint16 satellites_visible\nint32[] satellite_visible_prn\n\
+           int32[] satellite_visible_z\nint32[] satellite_visible_azimuth\n\
+           int32[] satellite_visible_snr\n\
+           int16 STATUS_NO_FIX=-1\nint16 STATUS_FIX=0\nint16 STATUS_SBAS_FIX=1\n\
+           int16 STATUS_GBAS_FIX=2\nint16 STATUS_DGPS_FIX=18\nint16 STATUS_RTK_FIX=19\n\
+           int16 STATUS_RTK_FLOAT=20\nint16 STATUS_WAAS_FIX=33\nint16 status\n\
+           uint16 SOURCE_NONE=0\nuint16 SOURCE_GPS=1\nuint16 SOURCE_POINTS=2\n\
+           uint16 SOURCE_DOPPLER=4\nuint16 SOURCE_ALTIMETER=8\nuint16 SOURCE_MAGNETIC=16\n\
+           uint16 SOURCE_GYRO=32\nuint16 SOURCE_ACCEL=64\n\
+           uint16 motion_source\nuint16 orientation_source\nuint16 position_source\n",
+    deps: &[&HEADER],
+};
+/// `gps_msgs/GPSFix` (ROS 2 `gps_umd`): the fix with its DOPs and satellites.
+pub static GPS_FIX: RosType = RosType {
+    short: "gps_msgs/GPSFix",
+    text: "std_msgs/Header header\nGPSStatus status\n\
+           float64 latitude\nfloat64 longitude\nfloat64 altitude\n\
+           float64 track\nfloat64 speed\nfloat64 climb\n\
+           float64 pitch\nfloat64 roll\nfloat64 dip\nfloat64 time\n\
+           float64 gdop\nfloat64 pdop\nfloat64 hdop\nfloat64 vdop\nfloat64 tdop\n\
+           float64 err\nfloat64 err_horz\nfloat64 err_vert\nfloat64 err_track\n\
+           float64 err_speed\nfloat64 err_climb\nfloat64 err_time\n\
+           float64 err_pitch\nfloat64 err_roll\nfloat64 err_dip\n\
+           float64[9] position_covariance\n\
+           uint8 COVARIANCE_TYPE_UNKNOWN = 0\nuint8 COVARIANCE_TYPE_APPROXIMATED = 1\n\
+           uint8 COVARIANCE_TYPE_DIAGONAL_KNOWN = 2\nuint8 COVARIANCE_TYPE_KNOWN = 3\n\
+           uint8 position_covariance_type\n",
+    deps: &[&HEADER, &GPS_STATUS],
+};
 /// `sensor_msgs/Image`.
 pub static IMAGE: RosType = RosType {
     short: "sensor_msgs/Image",

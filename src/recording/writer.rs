@@ -287,6 +287,9 @@ impl<W: Write + Seek> McapSink<W> {
             Message::GnssHeading(m) => self.write_with(topic, &schema::IMU, stamp, arrival, |b| {
                 ros::encode_imu(&ros::imu_of_heading(m), b)
             }),
+            Message::GnssSky(m) => self.write_with(topic, &schema::GPS_FIX, stamp, arrival, |b| {
+                ros::encode_gps_fix(m, b)
+            }),
         }
     }
 

@@ -7,6 +7,7 @@
 //! `recording.mcap` (every message, ground truth and estimate; see [`crate::recording`]).
 
 mod folder;
+pub mod gnss_log;
 pub mod images;
 pub mod mapping;
 mod outcome;

@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::path::Path;
 use thiserror::Error;
-use vinebench_msgs::{Nanos, Trajectory};
+use vinebench_msgs::{FixStatus, Nanos, Trajectory};
 use vinebench_onboard::estimator::{EstimatorStats, StageStats};
 use vinebench_sim::motion::{MotionOutcome, RobotMetrics};
 use vinebench_sim::params::MotionModelKind;
@@ -149,6 +149,8 @@ pub struct Simulation {
     pub start: Nanos,
     /// Centre lines of the vine rows (world x, y every metre), for the closed-loop plot.
     pub row_lines: Vec<Vec<(f64, f64)>>,
+    /// What the GNSS receiver delivered (none when it is off).
+    pub gnss: Option<crate::runner::gnss_log::GnssLog>,
 }
 
 /// Why and when the safety layer of a closed-loop run (`[control]`) stopped the robot.
@@ -412,6 +414,9 @@ pub struct RobotReport {
     /// Start of the run (intrusion times are relative to it in the Markdown).
     #[serde(skip)]
     pub start: Nanos,
+    /// What the GNSS receiver delivered: solution types, fix losses, satellites and DOP
+    /// (none when the receiver is off).
+    pub gnss: Option<crate::runner::gnss_log::GnssSummary>,
 }
 
 /// The route driven by another motion model (`motion.compare_with`), against the run.
@@ -513,6 +518,7 @@ impl RobotReport {
             steering: sim.steering.clone(),
             clearance: sim.clearance.clone(),
             start: sim.start,
+            gnss: sim.gnss.as_ref().map(|g| g.summary()),
         }
     }
 
@@ -536,6 +542,11 @@ impl RobotReport {
                 | RobotOutcome::StoppedUncertain { .. } => 1.0,
                 _ => 0.0,
             }),
+            "gnss_fixed_share" => self.gnss.as_ref().map(|g| g.share_of(FixStatus::RtkFixed)),
+            "gnss_no_fix_share" => self.gnss.as_ref().map(|g| g.share_of(FixStatus::NoFix)),
+            "gnss_fix_losses" => self.gnss.as_ref().map(|g| g.fix_losses as f64),
+            "gnss_refix_max_s" => self.gnss.as_ref().and_then(|g| g.refix_max_s),
+            "gnss_mean_satellites" => self.gnss.as_ref().and_then(|g| g.mean_satellites_used),
             "compare_end_gap_m" => self.largest(|c| c.end_gap_m),
             "compare_path_separation_m" => self.largest(|c| c.max_path_separation_m),
             _ => None,
@@ -608,6 +619,22 @@ mod tests {
                 intrusions: Vec::new(),
             },
             start: Nanos(0),
+            gnss: Some(crate::runner::gnss_log::GnssSummary {
+                epochs: 400,
+                share: [("rtk_fixed", 0.75), ("rtk_float", 0.125), ("no_fix", 0.125)]
+                    .into_iter()
+                    .map(|(k, v)| (k.to_string(), v))
+                    .collect(),
+                fix_losses: 3,
+                refixes: 2,
+                refix_median_s: Some(8.0),
+                refix_max_s: Some(12.5),
+                sky_model: true,
+                mean_satellites_used: Some(11.5),
+                min_satellites_used: Some(4),
+                mean_hdop: Some(0.9),
+                max_hdop: Some(3.0),
+            }),
         }
     }
 
@@ -627,6 +654,11 @@ mod tests {
             ("stopped_by_safety", 0.0),
             ("compare_end_gap_m", 0.25),
             ("compare_path_separation_m", 0.5),
+            ("gnss_fixed_share", 0.75),
+            ("gnss_no_fix_share", 0.125),
+            ("gnss_fix_losses", 3.0),
+            ("gnss_refix_max_s", 12.5),
+            ("gnss_mean_satellites", 11.5),
         ];
         let mut names: Vec<&str> = ROBOT_METRICS.iter().map(|m| m.0).collect();
         let mut wanted: Vec<&str> = want.iter().map(|w| w.0).collect();

@@ -385,6 +385,9 @@ impl Report {
         }
         md.push('\n');
         md.push_str(&self.robot.markdown());
+        if let Some(g) = self.robot.gnss.as_ref().filter(|g| g.epochs > 0) {
+            md.push_str(&g.markdown());
+        }
 
         let _ = writeln!(
             md,
@@ -725,6 +728,11 @@ pub fn write(dir: &Path, sim: &Simulation, report: &Report) -> Result<(), RunErr
         scoring::plots::plot_altitude_svg(dir.join("altitude.svg"), &sim.truth, &named, t0)
     {
         notes.push(format!("altitude.svg: {e}"));
+    }
+    if let Some(g) = sim.gnss.as_ref().filter(|g| !g.is_empty())
+        && let Err(e) = g.plot(dir, t0, &sim.fault_windows, &sim.row_lines)
+    {
+        notes.push(format!("gnss.svg, gnss_fix_map.svg: {e}"));
     }
     let mut md = report.markdown();
     if !notes.is_empty() {

@@ -31,6 +31,7 @@ use vinebench_sim::physics::{RapierPhysics, Scene};
 use vinebench_sim::render::shade::Renderer;
 use vinebench_sim::robot::RobotModel;
 use vinebench_sim::route::build_route;
+use vinebench_sim::sensors::sky::LineOfSight;
 use vinebench_sim::sensors::{SensorContext, SensorModel, build_cameras, build_sensors};
 use vinebench_sim::world::World;
 
@@ -292,23 +293,37 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
         static_transforms: robot.static_transforms.clone(),
         geometry: robot.geometry.clone(),
     };
-    let mut sensors = build_sensors(&s.sensors, &s.faults, &ctx).map_err(|e| sc.param_error(e))?;
     vinebench_sim::render::validate(&s.render).map_err(|e| sc.param_error(e))?;
     // Read even when no camera draws it: a wrong path fails here, not in a later run.
     let mesh = load_world_mesh(sc)?;
     let renderer = if s.sensors.cameras.is_empty() {
         None
     } else {
-        let r = Arc::new(
+        Some(Arc::new(
             vinebench_sim::render::build_renderer_with_mesh(&world, &s.render, mesh.as_ref())
                 .map_err(|e| sc.param_error(e))?,
-        );
-        sensors.extend(
-            build_cameras(&s.sensors.cameras, &s.render, &ctx, &r)
-                .map_err(|e| sc.param_error(e))?,
-        );
-        Some(r)
+        ))
     };
+    // The GNSS sky looks through the cameras' geometry, or its own without cameras.
+    let sight: Option<Arc<dyn LineOfSight>> =
+        if s.sensors.gnss.enabled && s.sensors.gnss.sky.enabled {
+            Some(match &renderer {
+                Some(r) => r.clone(),
+                None => Arc::new(
+                    vinebench_sim::render::build_geometry(&world, &s.render, mesh.as_ref())
+                        .map_err(|e| sc.param_error(e))?,
+                ),
+            })
+        } else {
+            None
+        };
+    let mut sensors =
+        build_sensors(&s.sensors, &s.faults, &ctx, sight).map_err(|e| sc.param_error(e))?;
+    if let Some(r) = &renderer {
+        sensors.extend(
+            build_cameras(&s.sensors.cameras, &s.render, &ctx, r).map_err(|e| sc.param_error(e))?,
+        );
+    }
     let estimator_error = |e: EstimatorError| match e {
         EstimatorError::InvalidParam {
             path,
@@ -627,6 +642,12 @@ pub fn simulate_setup(
     let mut png =
         png_dir.map(|d| crate::runner::images::PngDump::new(&d, s.render.debug_png_every));
     let start = sc.start;
+    let mut gnss_log = s.sensors.gnss.enabled.then(|| {
+        crate::runner::gnss_log::GnssLog::new(
+            vinebench_msgs::geodesy::LocalEnu::new(s.origin),
+            s.sensors.gnss.sky.enabled,
+        )
+    });
     // Closed loop (`[control] localization`): the follower steers on an estimate.
     let mut steering = match s.control.source() {
         None => None,
@@ -778,6 +799,9 @@ pub fn simulate_setup(
         }
         while pending.peek().is_some_and(|p| p.0.tm.arrival <= t) {
             if let Some(Reverse(p)) = pending.pop() {
+                if let Some(g) = &mut gnss_log {
+                    g.push(&p.tm.msg);
+                }
                 deliver(
                     p.tm,
                     &mut estimators,
@@ -810,6 +834,9 @@ pub fn simulate_setup(
     }
     // Deliver what is still in flight, in arrival order.
     while let Some(Reverse(p)) = pending.pop() {
+        if let Some(g) = &mut gnss_log {
+            g.push(&p.tm.msg);
+        }
         deliver(
             p.tm,
             &mut estimators,
@@ -881,6 +908,7 @@ pub fn simulate_setup(
             })
             .collect(),
         clearance: clearance.metrics().clone(),
+        gnss: gnss_log,
     };
     if let Some(mut rec) = recorder {
         if let Some(m) = &sim.mapping {

@@ -212,6 +212,26 @@ pub const ROBOT_METRICS: &[(&str, &str)] = &[
         "1 when the closed-loop safety layer stopped the robot (estimate lost or too uncertain), else 0",
     ),
     (
+        "gnss_fixed_share",
+        "share of the GNSS receiver's epochs with an RTK fixed solution (0 to 1)",
+    ),
+    (
+        "gnss_no_fix_share",
+        "share of the GNSS receiver's epochs without a position (0 to 1)",
+    ),
+    (
+        "gnss_fix_losses",
+        "times the GNSS receiver lost its RTK fixed solution (count)",
+    ),
+    (
+        "gnss_refix_max_s",
+        "longest time from losing an RTK fix to fixing again (s; none without a loss that came back)",
+    ),
+    (
+        "gnss_mean_satellites",
+        "mean number of satellites the GNSS receiver used (needs [sensors.gnss.sky])",
+    ),
+    (
         "compare_end_gap_m",
         "largest horizontal distance between the run's end position and that of a `motion.compare_with` model (m)",
     ),

@@ -931,7 +931,10 @@ impl Eif {
                 }
             }
             Message::WheelOdom(_) if self.cfg.use_wheel => self.stats.count_rejected("before_init"),
-            Message::WheelOdom(_) | Message::Image(_) | Message::CameraInfo(_) => {}
+            Message::WheelOdom(_)
+            | Message::Image(_)
+            | Message::CameraInfo(_)
+            | Message::GnssSky(_) => {}
         }
     }
 
@@ -1709,7 +1712,7 @@ impl Estimator for Eif {
                     ));
                 }
             }
-            Message::Image(_) | Message::CameraInfo(_) => {}
+            Message::Image(_) | Message::CameraInfo(_) | Message::GnssSky(_) => {}
         }
     }
 

@@ -367,7 +367,10 @@ fn checked_frame(msg: &Message) -> Option<(&'static str, &str)> {
         Message::GnssVelocity(m) => Some(("frame_id", m.frame_id.as_str())),
         Message::TrackingOdom(m) => Some(("child_frame_id", m.child_frame_id.as_str())),
         Message::GnssHeading(m) => Some(("/gnss/heading", m.frame_id.as_str())),
-        Message::WheelOdom(_) | Message::Image(_) | Message::CameraInfo(_) => None,
+        Message::WheelOdom(_)
+        | Message::Image(_)
+        | Message::CameraInfo(_)
+        | Message::GnssSky(_) => None,
     }
 }
 

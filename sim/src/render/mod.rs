@@ -139,6 +139,38 @@ pub fn build_renderer_with_mesh(
     p: &crate::params::RenderParams,
     mesh: Option<&scene::WorldMesh>,
 ) -> Result<shade::Renderer, crate::params::ParamError> {
+    let SceneGeometry { scene, caster } = build_geometry(world, p, mesh)?;
+    let light = shade::Lighting {
+        to_sun: shade::Lighting::sun_direction(p.sun_azimuth_deg, p.sun_elevation_deg),
+        sun: p.sun_irradiance as f32,
+        sky: p.sky_irradiance as f32,
+        exposure: p.exposure as f32,
+        sun_glare: p.sun_glare,
+    };
+    Ok(shade::Renderer::new(
+        scene,
+        caster,
+        light,
+        p.shadow_cell_m,
+        world.seed,
+    ))
+}
+
+/// The render geometry and its `[render] backend` ray caster, without lights, textures
+/// or shadows: what the GNSS sky model traces its lines of sight through.
+pub struct SceneGeometry {
+    /// The geometry.
+    pub scene: scene::RenderScene,
+    /// Its ray caster.
+    pub caster: Box<dyn RayCaster>,
+}
+
+/// Builds the [`SceneGeometry`] of a world (`mesh` as in [`build_renderer_with_mesh`]).
+pub fn build_geometry(
+    world: &crate::world::World,
+    p: &crate::params::RenderParams,
+    mesh: Option<&scene::WorldMesh>,
+) -> Result<SceneGeometry, crate::params::ParamError> {
     use crate::params::{ParamError, RenderBackend};
     validate(p)?;
     let (lo, hi) = world.terrain.domain();
@@ -190,20 +222,7 @@ pub fn build_renderer_with_mesh(
             ));
         }
     };
-    let light = shade::Lighting {
-        to_sun: shade::Lighting::sun_direction(p.sun_azimuth_deg, p.sun_elevation_deg),
-        sun: p.sun_irradiance as f32,
-        sky: p.sky_irradiance as f32,
-        exposure: p.exposure as f32,
-        sun_glare: p.sun_glare,
-    };
-    Ok(shade::Renderer::new(
-        scene,
-        caster,
-        light,
-        p.shadow_cell_m,
-        world.seed,
-    ))
+    Ok(SceneGeometry { scene, caster })
 }
 
 /// Checks every `[render]` value; the first problem comes back with its dotted path.

@@ -19,8 +19,14 @@
 //! - **No fix**: status `NoFix`, position NaN, covariance zero, and no velocity message.
 //! - **Velocity** (each epoch with a fix): the antenna's true ENU velocity plus white
 //!   noise of σ `velocity_sigma_mps` per axis, covariance `σ²·I`.
+//! - **Sky** (`[sensors.gnss.sky] enabled`, [`super::sky`]): the solution type comes from
+//!   the satellites the antenna sees through the world, capped by the fault windows; the
+//!   error and reported covariance scale with the DOP, foliage adds multipath; each epoch
+//!   also publishes a [`GnssSkyMsg`] (`/gnss/gpsfix`). Its random stream is
+//!   `sensors.gnss.sky`, so the `sensors.gnss` draws stay those of a receiver without it.
 
 use super::noise::{GaussMarkov3, white3};
+use super::sky::{LineOfSight, SkyConfig, SkyState};
 use super::{EpochClock, SensorContext, SensorModel, latency_from_ms, mount, require_rate};
 use crate::params::{
     GnssErrorParams, GnssFault, GnssParams, ParamError, require_non_negative, require_positive,
@@ -29,9 +35,10 @@ use crate::rng;
 use crate::truth::TruthSample;
 use nalgebra::{Isometry3, Matrix3, Vector3};
 use rand_chacha::ChaCha8Rng;
+use std::sync::Arc;
 use vinebench_msgs::geodesy::{Geodetic, LocalEnu};
 use vinebench_msgs::{
-    FixStatus, FrameId, GnssFixMsg, GnssVelocityMsg, Message, Nanos, TimedMessage,
+    FixStatus, FrameId, GnssFixMsg, GnssSkyMsg, GnssVelocityMsg, Message, Nanos, TimedMessage,
 };
 
 /// A forced solution type during `[start, end)` (times after the run's first sample).
@@ -97,8 +104,13 @@ impl SolutionError {
     }
 }
 
-/// The simulated GNSS receiver. Random stream `sensors.gnss`.
-#[derive(Clone, Debug)]
+/// The sky model of a receiver: its state and the world it looks through.
+struct Sky {
+    state: SkyState,
+    sight: Arc<dyn LineOfSight>,
+}
+
+/// The simulated GNSS receiver. Random streams `sensors.gnss` and `sensors.gnss.sky`.
 pub struct Gnss {
     frame_id: FrameId,
     body_from_antenna: Isometry3<f64>,
@@ -114,6 +126,7 @@ pub struct Gnss {
     single: SolutionError,
     velocity_sigma: Vector3<f64>,
     velocity_covariance: Matrix3<f64>,
+    sky: Option<Sky>,
 }
 
 impl Gnss {
@@ -123,14 +136,16 @@ impl Gnss {
         faults: &[GnssFault],
         ctx: &SensorContext,
     ) -> Result<Gnss, ParamError> {
-        Gnss::with_windows(p, status_windows(faults)?, ctx)
+        Gnss::with_windows(p, status_windows(faults)?, ctx, None)
     }
 
-    /// Like [`Gnss::new`] with fault windows already checked by [`status_windows`].
+    /// Like [`Gnss::new`] with fault windows already checked by [`status_windows`], and
+    /// `sight` the world the antenna looks through (needed with `sky.enabled`).
     pub fn with_windows(
         p: &GnssParams,
         windows: Vec<StatusWindow>,
         ctx: &SensorContext,
+        sight: Option<Arc<dyn LineOfSight>>,
     ) -> Result<Gnss, ParamError> {
         let path = |k: &str| format!("sensors.gnss.{k}");
         let rate_hz = require_rate(&path("rate_hz"), p.rate_hz)?;
@@ -144,6 +159,23 @@ impl Gnss {
         let rtk_fixed = SolutionError::new(&p.rtk_fixed, &path("rtk_fixed"), scale, dt, &mut rng)?;
         let rtk_float = SolutionError::new(&p.rtk_float, &path("rtk_float"), scale, dt, &mut rng)?;
         let single = SolutionError::new(&p.single, &path("single"), scale, dt, &mut rng)?;
+        let sky = if p.sky.enabled {
+            let cfg = SkyConfig::new(&p.sky)?;
+            let sight = sight.ok_or_else(|| {
+                ParamError::new(
+                    path("sky.enabled"),
+                    "false where no world geometry is built",
+                    "true",
+                )
+            })?;
+            let rng = rng::stream(ctx.master_seed, "sensors.gnss.sky");
+            Some(Sky {
+                state: SkyState::new(cfg, dt, rng),
+                sight,
+            })
+        } else {
+            None
+        };
         Ok(Gnss {
             frame_id: FrameId::new(&p.frame),
             body_from_antenna,
@@ -159,6 +191,7 @@ impl Gnss {
             single,
             velocity_sigma: Vector3::repeat(vel_sigma),
             velocity_covariance: Matrix3::identity() * (vel_sigma * vel_sigma),
+            sky,
         })
     }
 
@@ -190,11 +223,20 @@ impl SensorModel for Gnss {
     fn sample(&mut self, truth: &TruthSample, out: &mut Vec<TimedMessage>) {
         let stamp = self.clock.time();
         debug_assert_eq!(truth.stamp, stamp, "the runner must sample at next_time()");
-        let status = self.status_at(stamp);
+        let forced = self.status_at(stamp);
         let k = truth.at_mount(&self.body_from_antenna);
         // Draw order per epoch (fixed): velocity noise (also without a fix), then the
         // three error processes step to the next epoch.
         let velocity_noise = white3(&mut self.rng, &self.velocity_sigma);
+        let antenna = k.world_from_sensor.translation.vector;
+        let sky = self.sky.as_mut().map(|sky| {
+            let e = sky
+                .state
+                .epoch(stamp, self.enu.origin(), &antenna, &*sky.sight, forced);
+            let (h, v) = sky.state.dop_scale(e.dop.as_ref());
+            (e, Vector3::new(h, h, v))
+        });
+        let status = sky.as_ref().map_or(forced, |(e, _)| e.status);
         let active = match status {
             FixStatus::RtkFixed => Some(&self.rtk_fixed),
             FixStatus::RtkFloat => Some(&self.rtk_float),
@@ -202,43 +244,62 @@ impl SensorModel for Gnss {
             FixStatus::NoFix => None,
         };
         let arrival = stamp + self.latency;
-        match active {
-            Some(err) => {
-                let p_in_world = k.world_from_sensor.translation.vector + err.process.value();
-                out.push(TimedMessage {
-                    arrival,
-                    msg: Message::GnssFix(GnssFixMsg {
-                        stamp,
-                        frame_id: self.frame_id.clone(),
-                        status,
-                        position: self.enu.geodetic_from_enu(&p_in_world),
-                        position_covariance: err.reported_covariance,
-                    }),
-                });
-                out.push(TimedMessage {
-                    arrival,
-                    msg: Message::GnssVelocity(GnssVelocityMsg {
-                        stamp,
-                        frame_id: self.frame_id.clone(),
-                        velocity_in_world: k.velocity_in_world + velocity_noise,
-                        covariance: self.velocity_covariance,
-                    }),
-                });
+        let nan = Geodetic {
+            lat_deg: f64::NAN,
+            lon_deg: f64::NAN,
+            alt_m: f64::NAN,
+        };
+        let (position, position_covariance) = match (active, &sky) {
+            (None, _) => (nan, Matrix3::zeros()),
+            (Some(err), None) => (
+                self.enu.geodetic_from_enu(&(antenna + err.process.value())),
+                err.reported_covariance,
+            ),
+            (Some(err), Some((e, scale))) => {
+                // The error at the epoch's DOP, plus multipath the receiver does not know.
+                let p_in_world = antenna + err.process.value().component_mul(scale) + e.multipath;
+                let s = Matrix3::from_diagonal(scale);
+                (
+                    self.enu.geodetic_from_enu(&p_in_world),
+                    s * err.reported_covariance * s,
+                )
             }
-            None => out.push(TimedMessage {
+        };
+        out.push(TimedMessage {
+            arrival,
+            msg: Message::GnssFix(GnssFixMsg {
+                stamp,
+                frame_id: self.frame_id.clone(),
+                status,
+                position,
+                position_covariance,
+            }),
+        });
+        if active.is_some() {
+            out.push(TimedMessage {
                 arrival,
-                msg: Message::GnssFix(GnssFixMsg {
+                msg: Message::GnssVelocity(GnssVelocityMsg {
+                    stamp,
+                    frame_id: self.frame_id.clone(),
+                    velocity_in_world: k.velocity_in_world + velocity_noise,
+                    covariance: self.velocity_covariance,
+                }),
+            });
+        }
+        if let Some((e, _)) = sky {
+            out.push(TimedMessage {
+                arrival,
+                msg: Message::GnssSky(GnssSkyMsg {
                     stamp,
                     frame_id: self.frame_id.clone(),
                     status,
-                    position: Geodetic {
-                        lat_deg: f64::NAN,
-                        lon_deg: f64::NAN,
-                        alt_m: f64::NAN,
-                    },
-                    position_covariance: Matrix3::zeros(),
+                    position,
+                    position_covariance,
+                    dop: e.dop,
+                    corrections: self.sky.as_ref().is_some_and(|s| s.state.corrections()),
+                    satellites: e.satellites,
                 }),
-            }),
+            });
         }
         self.rtk_fixed.process.step(&mut self.rng);
         self.rtk_float.process.step(&mut self.rng);

@@ -17,6 +17,7 @@ pub mod camera;
 pub mod gnss;
 pub mod imu;
 pub mod noise;
+pub mod sky;
 pub mod tracking_camera;
 pub mod wheel_odom;
 
@@ -61,7 +62,8 @@ pub struct SensorContext {
     pub geometry: RobotGeometry,
 }
 
-/// Builds every enabled sensor of `[sensors]`, with `[faults]` applied.
+/// Builds every enabled sensor of `[sensors]`, with `[faults]` applied; `sight` is the
+/// world the GNSS antenna looks through (needed with `[sensors.gnss.sky] enabled`).
 ///
 /// The order is fixed: imu, gnss, tracking_camera, wheel_odom (disabled ones are left
 /// out). Parameters of enabled sensors and every `[[faults.gnss]]` window are checked;
@@ -71,6 +73,7 @@ pub fn build_sensors(
     params: &SensorsParams,
     faults: &FaultsParams,
     ctx: &SensorContext,
+    sight: Option<std::sync::Arc<dyn sky::LineOfSight>>,
 ) -> Result<Vec<Box<dyn SensorModel>>, ParamError> {
     // Fault windows are checked even when the GNSS is disabled: a broken scenario file
     // should fail the same way whichever sensors it turns on.
@@ -80,7 +83,12 @@ pub fn build_sensors(
         sensors.push(Box::new(Imu::new(&params.imu, ctx)?));
     }
     if params.gnss.enabled {
-        sensors.push(Box::new(Gnss::with_windows(&params.gnss, windows, ctx)?));
+        sensors.push(Box::new(Gnss::with_windows(
+            &params.gnss,
+            windows,
+            ctx,
+            sight,
+        )?));
     }
     if params.tracking_camera.enabled {
         sensors.push(Box::new(TrackingCamera::new(&params.tracking_camera, ctx)?));
@@ -583,13 +591,13 @@ mod tests {
     #[test]
     fn builds_enabled_sensors_in_fixed_order() {
         let c = ctx(1);
-        let s = build_sensors(&all_enabled(), &faults(), &c).unwrap();
+        let s = build_sensors(&all_enabled(), &faults(), &c, None).unwrap();
         let names: Vec<_> = s.iter().map(|s| s.name()).collect();
         assert_eq!(names, ["imu", "gnss", "tracking_camera", "wheel_odom"]);
         let mut p = all_enabled();
         p.imu.enabled = false;
         p.tracking_camera.enabled = false;
-        let s = build_sensors(&p, &faults(), &c).unwrap();
+        let s = build_sensors(&p, &faults(), &c, None).unwrap();
         let names: Vec<_> = s.iter().map(|s| s.name()).collect();
         assert_eq!(names, ["gnss", "wheel_odom"]);
     }
@@ -597,7 +605,8 @@ mod tests {
     #[test]
     fn bad_parameters_name_their_path() {
         let c = ctx(1);
-        let err = |p: SensorsParams, f: FaultsParams| build_sensors(&p, &f, &c).err().unwrap();
+        let err =
+            |p: SensorsParams, f: FaultsParams| build_sensors(&p, &f, &c, None).err().unwrap();
 
         let mut p = all_enabled();
         p.imu.rate_hz = 0.0;
@@ -657,7 +666,7 @@ mod tests {
         let mut p = all_enabled();
         p.imu.enabled = false;
         p.imu.rate_hz = -5.0;
-        assert!(build_sensors(&p, &faults(), &c).is_ok());
+        assert!(build_sensors(&p, &faults(), &c, None).is_ok());
         let mut f = faults();
         f.gnss[0].start_s = f64::INFINITY;
         p.gnss.enabled = false;
@@ -675,7 +684,7 @@ mod tests {
     fn same_seed_gives_identical_messages_and_other_seed_differs() {
         let end = START + Nanos::from_secs(6);
         let go = |seed| {
-            let mut s = build_sensors(&all_enabled(), &faults(), &ctx(seed)).unwrap();
+            let mut s = build_sensors(&all_enabled(), &faults(), &ctx(seed), None).unwrap();
             run(&mut s, &circle_truth, end)
         };
         let a = go(7);
@@ -701,7 +710,7 @@ mod tests {
     fn a_sensor_does_not_change_when_others_are_toggled() {
         let end = START + Nanos::from_secs(6);
         let topic_msgs = |p: &SensorsParams, topic: &str| {
-            let mut s = build_sensors(p, &faults(), &ctx(11)).unwrap();
+            let mut s = build_sensors(p, &faults(), &ctx(11), None).unwrap();
             let all = run(&mut s, &circle_truth, end);
             debug_strings(
                 &all.into_iter()
