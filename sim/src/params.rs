@@ -562,8 +562,15 @@ pub struct ImuParams {
     pub accel_noise_density_ug_rthz: f64,
     /// Accelerometer in-run bias stability, µg.
     pub accel_bias_instability_ug: f64,
-    /// Bias Gauss-Markov correlation time, s.
+    /// In-run bias model: `"flicker"` (1/f: the Allan deviation's flat floor at the
+    /// bias instability) or `"gauss_markov"` (one first-order process of that σ).
+    pub bias_model: ImuBiasModel,
+    /// Band of the flicker model's correlation times, s: `[shortest, longest]`.
+    pub flicker_band_s: [f64; 2],
+    /// Bias Gauss-Markov correlation time, s (`bias_model = "gauss_markov"`).
     pub bias_correlation_time_s: f64,
+    /// The gyro senses the Earth's rotation (15.04 °/h, its direction from the latitude).
+    pub earth_rate: bool,
     /// Gyro turn-on bias (1σ), °/h.
     pub gyro_turn_on_bias_dph: f64,
     /// Accelerometer turn-on bias (1σ), µg.
@@ -576,6 +583,16 @@ pub struct ImuParams {
     pub orientation_correlation_time_s: f64,
 }
 default_from_section!(ImuParams, "sensors.imu");
+
+/// The in-run bias model of an IMU.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ImuBiasModel {
+    /// Flicker (1/f) noise: a flat Allan-deviation floor.
+    Flicker,
+    /// One first-order Gauss-Markov process.
+    GaussMarkov,
+}
 
 /// A GNSS solution type in scenario files.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]

@@ -695,6 +695,8 @@ pub struct Eif {
     cfg: Config,
     transforms: StaticTransforms,
     enu: LocalEnu,
+    /// The Earth's rotation in the world frame, rad/s (zero without `earth_rate`).
+    earth_rate_in_world: Vector3<f64>,
     imu_frame: Option<FrameId>,
     /// `imu_from_body`, m.
     imu_from_body: Isometry3<f64>,
@@ -780,6 +782,8 @@ const KIND_NAMES: [&str; 7] = [
     "wheel_odom",
     "gnss_heading",
 ];
+/// The Earth's rotation rate, rad/s (WGS84).
+pub const EARTH_RATE_RADPS: f64 = 7.292_115e-5;
 /// What a heading before the start came from (init note).
 const COURSE: &str = "course over ground";
 /// See [`COURSE`].
@@ -796,10 +800,18 @@ impl Eif {
     ) -> Result<Eif, EstimatorError> {
         let cfg = Config::from_params(params)?;
         super::require_body_frame(&transforms, "eif")?;
+        // Ω_E·(0, cos φ, sin φ) in ENU at the origin's latitude φ (WGS84 Ω_E).
+        let earth_rate_in_world = if params.earth_rate {
+            let (s, c) = enu.origin().lat_deg.to_radians().sin_cos();
+            Vector3::new(0.0, c, s) * EARTH_RATE_RADPS
+        } else {
+            Vector3::zeros()
+        };
         Ok(Eif {
             cfg,
             transforms,
             enu,
+            earth_rate_in_world,
             imu_frame: None,
             imu_from_body: Isometry3::identity(),
             frame_cache: Vec::new(),
@@ -1378,7 +1390,13 @@ impl Eif {
         let Some(f) = self.filter.as_mut() else {
             return;
         };
-        let sample = ImuSample::from_msg(m);
+        let mut sample = ImuSample::from_msg(m);
+        // What the gyro senses of the Earth's rotation is not the body turning.
+        sample.w -= f
+            .core
+            .nav
+            .q
+            .inverse_transform_vector(&self.earth_rate_in_world);
         if sample.t <= f.last_imu.t {
             self.stats.count_rejected("imu_duplicate_stamp");
             return;
@@ -1802,6 +1820,8 @@ mod tests {
             // The synthetic GNSS and AHRS errors are white.
             gnss_correlation_time_s: 0.0,
             orientation_correlation_time_s: 0.0,
+            // The synthetic gyros do not sense the Earth's rotation.
+            earth_rate: false,
             ..EifParams::default()
         }
     }

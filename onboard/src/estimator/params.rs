@@ -107,6 +107,9 @@ pub struct EifParams {
     pub initial_velocity_sigma_mps: f64,
     /// How IMU samples are integrated between messages.
     pub imu_sample_model: ImuSampleModel,
+    /// Take the Earth's rotation (15.04 °/h about its axis, from the origin's latitude)
+    /// out of the gyro before integrating it.
+    pub earth_rate: bool,
     /// What the AHRS yaw is trusted for.
     pub orientation_yaw: OrientationYaw,
     /// Slowest horizontal GNSS speed used as a course over ground, m/s.

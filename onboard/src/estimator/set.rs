@@ -384,6 +384,8 @@ mod tests {
     fn params() -> EstimatorsParams {
         let mut p = EstimatorsParams::default();
         p.eif.gravity_mps2 = synthetic::GRAVITY;
+        // The synthetic gyros do not sense the Earth's rotation.
+        p.eif.earth_rate = false;
         p
     }
 

@@ -582,15 +582,79 @@ pub struct CameraSpec {
     pub stereo: Option<StereoSpec>,
 }
 
-/// Resolution modes of the D435 depth stream.
+/// Resolution modes of the D435 depth stream (Intel RealSense D400 Series Datasheet,
+/// "Depth stream" resolutions of the D435). The depth imagers are 1280×800; the 16:9
+/// modes are the 1280×720 crop scaled down (the same 87° × 58° field), the 4:3 mode is
+/// the full sensor scaled by 0.6 and cropped to 640 columns (a narrower, taller field).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub enum D435DepthMode {
-    /// 848×480 (16:9), the native 1280×720 field of view scaled by 2/3 (cropped from
-    /// 853 to 848 columns); Intel's recommended depth mode.
+    /// 1280×720, the native 16:9 field (Min-Z ≈ 0.28 m).
+    W1280H720,
+    /// 848×480 (16:9), the native field scaled by 2/3 (cropped from 853 to 848 columns);
+    /// Intel's recommended depth mode.
     W848H480,
     /// 640×480 (4:3): the 1280×800 sensor scaled by 0.6 and cropped to 640 columns, a
     /// narrower horizontal field of view (≈ 77°) and a taller vertical one (≈ 61°).
     W640H480,
+    /// 640×360 (16:9), the native field scaled by 1/2.
+    W640H360,
+    /// 480×270 (16:9), the native field scaled by 3/8.
+    W480H270,
+    /// 424×240 (16:9), the native field scaled by 1/3 (cropped from 427 to 424 columns).
+    W424H240,
+}
+
+impl D435DepthMode {
+    /// Every mode, largest first.
+    pub const ALL: [D435DepthMode; 6] = [
+        D435DepthMode::W1280H720,
+        D435DepthMode::W848H480,
+        D435DepthMode::W640H480,
+        D435DepthMode::W640H360,
+        D435DepthMode::W480H270,
+        D435DepthMode::W424H240,
+    ];
+
+    /// Width, height and the focal length's scale against the 1280-column mode.
+    pub fn geometry(self) -> (u32, u32, f64) {
+        match self {
+            D435DepthMode::W1280H720 => (1280, 720, 1.0),
+            D435DepthMode::W848H480 => (848, 480, 2.0 / 3.0),
+            D435DepthMode::W640H480 => (640, 480, 0.6),
+            D435DepthMode::W640H360 => (640, 360, 0.5),
+            D435DepthMode::W480H270 => (480, 270, 0.375),
+            D435DepthMode::W424H240 => (424, 240, 1.0 / 3.0),
+        }
+    }
+
+    /// The mode of a `width × height` image, if the D435 has one.
+    pub fn of_size(width: u32, height: u32) -> Option<D435DepthMode> {
+        D435DepthMode::ALL.into_iter().find(|m| {
+            let (w, h, _) = m.geometry();
+            (w, h) == (width, height)
+        })
+    }
+}
+
+/// Colour-stream modes of the D435 (OV2740, 1920×1080, HFOV 69.4°): the 16:9 modes scale
+/// the full field (focal length `f_1920·width/1920`), the 4:3 modes are the 1280×720
+/// mode cropped to 960×720 and scaled (`f = f_1920·(2/3)·width/960`). Width, height and
+/// focal length in px.
+pub fn d435_color_modes() -> [(u32, u32, f64); 9] {
+    let f1920 = 960.0 / 34.7_f64.to_radians().tan();
+    let wide = |w: u32, h: u32| (w, h, f1920 * f64::from(w) / 1920.0);
+    let four_three = |w: u32, h: u32| (w, h, f1920 * (2.0 / 3.0) * f64::from(w) / 960.0);
+    [
+        wide(1920, 1080),
+        wide(1280, 720),
+        wide(960, 540),
+        wide(848, 480),
+        four_three(640, 480),
+        wide(640, 360),
+        wide(424, 240),
+        four_three(320, 240),
+        wide(320, 180),
+    ]
 }
 
 pub use crate::params::CameraProfile;
@@ -652,10 +716,7 @@ impl CameraSpec {
     /// real device, or as RealSense's align-to-depth output); the narrower colour imager
     /// is available as [`CameraSpec::d435_color`].
     pub fn d435_depth(mode: D435DepthMode, rate_hz: f64) -> CameraSpec {
-        let (width, height, scale) = match mode {
-            D435DepthMode::W848H480 => (848, 480, 2.0 / 3.0),
-            D435DepthMode::W640H480 => (640, 480, 0.6),
-        };
+        let (width, height, scale) = mode.geometry();
         let f = d435_depth_f_1280() * scale;
         let intrinsics = Intrinsics {
             width,
@@ -688,17 +749,24 @@ impl CameraSpec {
     /// ≈ 55°. Distortion: `k1 = -0.024`, i.e. −1.5 % at the full sensor's corner, the
     /// datasheet bound. No depth.
     pub fn d435_color(rate_hz: f64) -> CameraSpec {
-        let f1920 = 960.0 / 34.7_f64.to_radians().tan();
-        let f = f1920 * 4.0 / 9.0;
-        CameraSpec {
+        CameraSpec::d435_color_mode(640, 480, rate_hz).expect("640×480 is a D435 colour mode")
+    }
+
+    /// The D435 colour stream in one of its modes ([`d435_color_modes`]); `None` for a
+    /// size the camera does not have.
+    pub fn d435_color_mode(width: u32, height: u32, rate_hz: f64) -> Option<CameraSpec> {
+        let (_, _, f) = d435_color_modes()
+            .into_iter()
+            .find(|m| (m.0, m.1) == (width, height))?;
+        Some(CameraSpec {
             profile: CameraProfile::D435Color,
             intrinsics: Intrinsics {
-                width: 640,
-                height: 480,
+                width,
+                height,
                 fx: f,
                 fy: f,
-                cx: 319.5,
-                cy: 239.5,
+                cx: 0.5 * (f64::from(width) - 1.0),
+                cy: 0.5 * (f64::from(height) - 1.0),
                 distortion: BrownConrady {
                     k1: -0.024,
                     ..BrownConrady::NONE
@@ -706,6 +774,50 @@ impl CameraSpec {
             },
             rate_hz,
             stereo: None,
+        })
+    }
+
+    /// The camera of `profile` at `width × height`: a D435 takes the datasheet mode of
+    /// that size (its own intrinsics, field of view and minimum depth); other profiles
+    /// are resized ([`CameraSpec::with_resolution`]). Errors (for a D435 size it does not
+    /// have) list the modes.
+    pub fn of_profile(
+        profile: CameraProfile,
+        width: u32,
+        height: u32,
+    ) -> Result<CameraSpec, String> {
+        let list = |modes: Vec<(u32, u32)>| {
+            modes
+                .iter()
+                .map(|(w, h)| format!("{w}×{h}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        match profile {
+            CameraProfile::D435Depth => D435DepthMode::of_size(width, height)
+                .map(|m| CameraSpec::d435_depth(m, profile.spec().rate_hz))
+                .ok_or_else(|| {
+                    format!(
+                        "a D435 depth mode: {}",
+                        list(
+                            D435DepthMode::ALL
+                                .iter()
+                                .map(|m| (m.geometry().0, m.geometry().1))
+                                .collect()
+                        )
+                    )
+                }),
+            CameraProfile::D435Color => {
+                CameraSpec::d435_color_mode(width, height, profile.spec().rate_hz).ok_or_else(
+                    || {
+                        format!(
+                            "a D435 colour mode: {}",
+                            list(d435_color_modes().iter().map(|m| (m.0, m.1)).collect())
+                        )
+                    },
+                )
+            }
+            _ => Ok(profile.spec().with_resolution(width, height)),
         }
     }
 
@@ -1546,6 +1658,62 @@ mod tests {
         ] {
             assert_eq!(p.spec().profile, p);
         }
+    }
+
+    #[test]
+    fn d435_sizes_are_its_datasheet_modes() {
+        // Depth: the 16:9 modes show the datasheet's 87° × 58° (±3°) field; 640×480 is
+        // the 1280×800 sensor at 0.6 (f = 0.6·674 = 404.6 px: 76.7° × 61.3°), not the
+        // 848×480 field squeezed into 640 columns (f = 339 px, 70.5° vertical) that a
+        // plain resize gave. Min-Z scales with f (fixed disparity search): 0.28 m at
+        // 1280×720.
+        for m in D435DepthMode::ALL {
+            let (w, h, scale) = m.geometry();
+            let spec = CameraSpec::of_profile(CameraProfile::D435Depth, w, h).unwrap();
+            let i = spec.intrinsics;
+            assert_eq!((i.width, i.height), (w, h));
+            let (hf, vf) = (i.hfov_deg().unwrap(), i.vfov_deg().unwrap());
+            if m == D435DepthMode::W640H480 {
+                assert!(
+                    (hf - 76.7).abs() < 0.1 && (vf - 61.3).abs() < 0.1,
+                    "{hf} {vf}"
+                );
+            } else {
+                assert!(
+                    (hf - 87.0).abs() <= 3.0 && (vf - 58.0).abs() <= 3.0,
+                    "{m:?}: {hf} {vf}"
+                );
+            }
+            assert!((i.fx - 674.3 * scale).abs() < 0.5, "{m:?}: {}", i.fx);
+            let min = spec.stereo.unwrap().min_range_m;
+            assert!((min - 0.28 * scale).abs() < 1e-12, "{m:?}: {min}");
+        }
+        let e = CameraSpec::of_profile(CameraProfile::D435Depth, 800, 600).unwrap_err();
+        for mode in [
+            "1280×720",
+            "848×480",
+            "640×480",
+            "640×360",
+            "480×270",
+            "424×240",
+        ] {
+            assert!(e.contains(mode), "{e}");
+        }
+        // Colour: 69.4° horizontal at every 16:9 mode (up to 0.7° more with the lens's
+        // barrel distortion, −1.5 % at the corner); the 4:3 modes ≈ 55°; 640×480 f ≈ 616
+        // px (factory calibrations report ≈ 615 px).
+        for (w, h, _) in d435_color_modes() {
+            let i = CameraSpec::of_profile(CameraProfile::D435Color, w, h)
+                .unwrap()
+                .intrinsics;
+            let hf = i.hfov_deg().unwrap();
+            let want = if w * 3 == h * 4 { 54.9 } else { 69.4 };
+            assert!((0.0..0.8).contains(&(hf - want)), "{w}×{h}: {hf}");
+        }
+        assert!(CameraSpec::of_profile(CameraProfile::D435Color, 752, 480).is_err());
+        // Other cameras are resized freely.
+        let z = CameraSpec::of_profile(CameraProfile::Zed2i, 752, 480).unwrap();
+        assert!((z.intrinsics.hfov_deg().unwrap() - 93.0).abs() < 1e-9);
     }
 
     fn plane_model() -> StereoDepthNoise {

@@ -108,7 +108,9 @@ impl Camera {
                     format!("{w}×{h}"),
                 ));
             }
-            spec = spec.with_resolution(w, h);
+            spec = CameraSpec::of_profile(p.profile, w, h).map_err(|expected| {
+                ParamError::new(format!("{path}.width"), expected, format!("{w}×{h}"))
+            })?;
         }
         let rate_hz = require_rate(
             &format!("{path}.rate_hz"),

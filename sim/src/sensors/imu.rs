@@ -43,14 +43,17 @@
 //! Errors, per axis and independent between axes:
 //! - white noise with discrete σ = density·√rate (the density of a band-limited white
 //!   noise sampled at `rate`);
-//! - an in-run bias: a first-order Gauss-Markov process ([`GaussMarkov3`], exact
-//!   discretisation, started in its steady state) with steady-state σ equal to the
-//!   datasheet's bias instability and correlation time `bias_correlation_time_s`.
-//!   *This is an approximation*: the datasheet value is the minimum of the measured
-//!   Allan-deviation curve (the flicker floor), while a Gauss-Markov process of σ has an
-//!   Allan-deviation **maximum** of 0.617·σ at an averaging time of 1.89·τ. Using the
-//!   instability directly as σ is the usual simple choice; it slightly overstates the
-//!   drift near 1.89·τ and does not reproduce the flat flicker floor;
+//! - an in-run bias, `bias_model`: `"flicker"` (default), 1/f noise ([`Flicker3`]: a
+//!   sum of Gauss-Markov processes with correlation times spread over `flicker_band_s`)
+//!   whose Allan deviation is flat at the datasheet's bias instability, as the measured
+//!   curve's floor is; or `"gauss_markov"`, one first-order process ([`GaussMarkov3`])
+//!   with σ the instability and correlation time `bias_correlation_time_s`, whose Allan
+//!   deviation has a **maximum** of 0.617·σ at 1.89·τ instead of a floor. Both start in
+//!   their steady state;
+//! - the Earth's rotation (`earth_rate`): `Ω_E = 7.292 115e-5 rad/s` about the Earth's
+//!   axis, in the world (ENU) `Ω_E·(0, cos φ, sin φ)` at the origin's latitude φ, seen
+//!   by the gyro as `Rᵀ·ω_ie`; the transport rate of a vehicle at a few m/s (1e-7 rad/s)
+//!   is left out;
 //! - a constant turn-on bias, drawn once per run (σ `*_turn_on_bias_*`).
 //!
 //! AHRS orientation: `q_meas = Exp(e_world) · q_true` with `q_true = world_from_imu` and
@@ -62,9 +65,9 @@
 //! velocity and acceleration covariances are the white-noise variances `σ²·I`; they
 //! leave out the (much smaller, slowly varying) biases, as a datasheet-driven driver does.
 
-use super::noise::{GaussMarkov3, white3};
+use super::noise::{Flicker3, GaussMarkov3, white3};
 use super::{EpochClock, SensorContext, SensorModel, latency_from_ms, mount, require_rate};
-use crate::params::{ImuParams, ParamError, require_non_negative, require_positive};
+use crate::params::{ImuBiasModel, ImuParams, ParamError, require_non_negative, require_positive};
 use crate::rng;
 use crate::truth::TruthSample;
 use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
@@ -77,6 +80,36 @@ pub const STANDARD_GRAVITY_MPS2: f64 = 9.806_65;
 pub const MICRO_G_MPS2: f64 = 1e-6 * STANDARD_GRAVITY_MPS2;
 /// One degree per hour in rad/s.
 pub const DEG_PER_HOUR_RADPS: f64 = std::f64::consts::PI / 180.0 / 3600.0;
+/// The Earth's rotation rate, rad/s (WGS84).
+pub const EARTH_RATE_RADPS: f64 = 7.292_115e-5;
+
+/// The Earth's rotation in the ENU frame at geodetic latitude `lat_deg`, rad/s.
+pub fn earth_rate_in_enu(lat_deg: f64) -> Vector3<f64> {
+    let (s, c) = lat_deg.to_radians().sin_cos();
+    Vector3::new(0.0, EARTH_RATE_RADPS * c, EARTH_RATE_RADPS * s)
+}
+
+/// An in-run bias process.
+#[derive(Clone, Debug)]
+enum Bias {
+    GaussMarkov(GaussMarkov3),
+    Flicker(Flicker3),
+}
+
+impl Bias {
+    fn value(&self) -> &Vector3<f64> {
+        match self {
+            Bias::GaussMarkov(b) => b.value(),
+            Bias::Flicker(b) => b.value(),
+        }
+    }
+    fn step(&mut self, rng: &mut ChaCha8Rng) {
+        match self {
+            Bias::GaussMarkov(b) => b.step(rng),
+            Bias::Flicker(b) => b.step(rng),
+        }
+    }
+}
 
 /// The simulated IMU. Random stream `sensors.imu`.
 #[derive(Clone, Debug)]
@@ -91,8 +124,9 @@ pub struct Imu {
     accel_white_sigma: Vector3<f64>,
     gyro_turn_on_bias: Vector3<f64>,
     accel_turn_on_bias: Vector3<f64>,
-    gyro_bias: GaussMarkov3,
-    accel_bias: GaussMarkov3,
+    gyro_bias: Bias,
+    accel_bias: Bias,
+    earth_rate_in_world: Vector3<f64>,
     orientation_error: GaussMarkov3,
     orientation_covariance: Matrix3<f64>,
     angular_velocity_covariance: Matrix3<f64>,
@@ -176,18 +210,35 @@ impl Imu {
             &Vector3::repeat(gyro_turn_on * DEG_PER_HOUR_RADPS),
         );
         let accel_turn_on_bias = white3(&mut rng, &Vector3::repeat(accel_turn_on * MICRO_G_MPS2));
-        let gyro_bias = GaussMarkov3::stationary(
-            Vector3::repeat(gyro_instab * DEG_PER_HOUR_RADPS),
-            bias_tau,
-            dt,
-            &mut rng,
-        );
-        let accel_bias = GaussMarkov3::stationary(
-            Vector3::repeat(accel_instab * MICRO_G_MPS2),
-            bias_tau,
-            dt,
-            &mut rng,
-        );
+        let [band_lo, band_hi] = p.flicker_band_s;
+        if p.bias_model == ImuBiasModel::Flicker
+            && !(band_lo.is_finite()
+                && band_lo >= dt
+                && band_hi.is_finite()
+                && band_hi >= band_lo
+                && band_hi <= 1e9)
+        {
+            return Err(ParamError::new(
+                path("flicker_band_s"),
+                format!(
+                    "[shortest, longest] correlation times with the sample period ({dt} s)                      <= shortest <= longest <= 1e9 s"
+                ),
+                format!("[{band_lo}, {band_hi}]"),
+            ));
+        }
+        let bias = |instability: f64, rng: &mut ChaCha8Rng| match p.bias_model {
+            ImuBiasModel::GaussMarkov => Bias::GaussMarkov(GaussMarkov3::stationary(
+                Vector3::repeat(instability),
+                bias_tau,
+                dt,
+                rng,
+            )),
+            ImuBiasModel::Flicker => {
+                Bias::Flicker(Flicker3::stationary(instability, band_lo, band_hi, dt, rng))
+            }
+        };
+        let gyro_bias = bias(gyro_instab * DEG_PER_HOUR_RADPS, &mut rng);
+        let accel_bias = bias(accel_instab * MICRO_G_MPS2, &mut rng);
         let orientation_sigma = Vector3::new(rp_sigma, rp_sigma, yaw_sigma);
         let orientation_error =
             GaussMarkov3::stationary(orientation_sigma, orient_tau, dt, &mut rng);
@@ -204,6 +255,11 @@ impl Imu {
             accel_turn_on_bias,
             gyro_bias,
             accel_bias,
+            earth_rate_in_world: if p.earth_rate {
+                earth_rate_in_enu(ctx.enu.origin().lat_deg)
+            } else {
+                Vector3::zeros()
+            },
             orientation_error,
             orientation_covariance: Matrix3::from_diagonal(&orientation_sigma.map(|s| s * s)),
             angular_velocity_covariance: Matrix3::identity() * (gyro_white * gyro_white),
@@ -256,7 +312,11 @@ impl SensorModel for Imu {
         // orientation processes step to the next epoch.
         let gyro_noise = white3(&mut self.rng, &self.gyro_white_sigma);
         let accel_noise = white3(&mut self.rng, &self.accel_white_sigma);
-        let angular_velocity = rate + self.gyro_turn_on_bias + self.gyro_bias.value() + gyro_noise;
+        let angular_velocity = rate
+            + world_from_imu.inverse_transform_vector(&self.earth_rate_in_world)
+            + self.gyro_turn_on_bias
+            + self.gyro_bias.value()
+            + gyro_noise;
         let linear_acceleration =
             specific_force + self.accel_turn_on_bias + self.accel_bias.value() + accel_noise;
         let orientation =
@@ -299,6 +359,7 @@ mod tests {
             accel_turn_on_bias_ug: 0.0,
             orientation_roll_pitch_sigma_deg: 0.0,
             orientation_yaw_sigma_deg: 0.0,
+            earth_rate: false,
             ..ImuParams::default()
         }
     }
@@ -542,6 +603,7 @@ mod tests {
         let p = ImuParams {
             gyro_bias_instability_dph: 10.0,
             accel_bias_instability_ug: 15.0,
+            bias_model: crate::params::ImuBiasModel::GaussMarkov,
             bias_correlation_time_s: 0.5,
             ..quiet()
         };
@@ -663,5 +725,85 @@ mod tests {
             .sum::<f64>()
             / n;
         assert!((nees - 3.0).abs() < 0.3, "mean NEES {nees}");
+    }
+
+    #[test]
+    fn a_still_gyro_reads_the_earth_rate_in_its_own_frame() {
+        // Noise-free, standing tilted and turned: ω = Rᵀ·Ω_E(0, cos φ, sin φ) exactly
+        // (φ = 40.4545°: 11.44 °/h north, 9.76 °/h up, 15.04 °/h in all).
+        let p = ImuParams {
+            earth_rate: true,
+            ..quiet()
+        };
+        let c = ctx(3);
+        let pose = Isometry3::from_parts(
+            Translation3::new(5.0, -2.0, 0.3),
+            UnitQuaternion::from_euler_angles(0.1, -0.2, 2.0),
+        );
+        let mut imu = Imu::new(&p, &c).unwrap();
+        let out = run_n(&mut imu, &|t| stationary(t, pose), 50);
+        let world_from_imu = (pose * imu.body_from_imu()).rotation;
+        let phi = 40.4545f64.to_radians();
+        let omega = Vector3::new(0.0, phi.cos(), phi.sin()) * 7.292_115e-5;
+        for m in imu_msgs(&out) {
+            let want = world_from_imu.inverse_transform_vector(&omega);
+            assert!(
+                (m.angular_velocity - want).norm() < 1e-15,
+                "{:?}",
+                m.angular_velocity
+            );
+        }
+        assert!((omega.norm() / DEG_PER_HOUR_RADPS - 15.041).abs() < 1e-3);
+    }
+
+    #[test]
+    fn still_run_allan_floor_is_flat_and_the_mean_is_the_earth_rate() {
+        // A navigation-grade gyro (0.001 °/s/√Hz, bias instability 0.5 °/h, flicker),
+        // level with x east, 2 h at 100 Hz standing still. Allan deviation at 30, 100 and
+        // 300 s: the model's, √(flicker² + N²/T), within 20 % (estimator spread at 300 s
+        // over 2 h: about 10 %). The 2 h mean of each axis is the Earth rate there
+        // (0, 11.44, 9.76 °/h) within 2 °/h (the flicker floor moves a 2 h mean by about
+        // its 0.5 °/h; white noise by 0.04 °/h).
+        let p = ImuParams {
+            rate_hz: 100.0,
+            gyro_noise_density_dps_rthz: 0.001,
+            gyro_bias_instability_dph: 0.5,
+            bias_model: crate::params::ImuBiasModel::Flicker,
+            earth_rate: true,
+            ..quiet()
+        };
+        let c = ctx(21);
+        // The IMU's mount is level with x forward: a body yaw of 0 has x east.
+        let mut imu = Imu::new(&p, &c).unwrap();
+        let level = Isometry3::identity();
+        let out = run_n(&mut imu, &|t| stationary(t, level), 720_000);
+        let world_from_imu = imu.body_from_imu().rotation;
+        let msgs = imu_msgs(&out);
+        let phi = 40.4545f64.to_radians();
+        let earth = world_from_imu
+            .inverse_transform_vector(&(Vector3::new(0.0, phi.cos(), phi.sin()) * 7.292_115e-5));
+        let n_white = 0.001f64.to_radians();
+        let floor = 0.5 * DEG_PER_HOUR_RADPS;
+        for axis in 0..3 {
+            let x: Vec<f64> = msgs.iter().map(|m| m.angular_velocity[axis]).collect();
+            let m = mean(&x);
+            assert!(
+                (m - earth[axis]).abs() < 2.0 * DEG_PER_HOUR_RADPS,
+                "axis {axis}: mean {} °/h vs {} °/h",
+                m / DEG_PER_HOUR_RADPS,
+                earth[axis] / DEG_PER_HOUR_RADPS
+            );
+            for t in [30.0, 100.0, 300.0] {
+                let a =
+                    crate::sensors::noise::stats::allan_deviation(&x, 0.01, (t * 100.0) as usize);
+                let model = (Flicker3::allan_deviation(floor, 1.0, 10_000.0, t).powi(2)
+                    + n_white * n_white / t)
+                    .sqrt();
+                assert!(
+                    (a / model - 1.0).abs() < 0.2,
+                    "axis {axis} T {t}: {a} vs {model}"
+                );
+            }
+        }
     }
 }
