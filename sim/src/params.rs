@@ -499,6 +499,10 @@ pub struct CameraParams {
     /// ([`crate::render::blur`]); 0 (the default) gives sharp images.
     #[serde(default)]
     pub exposure_ms: Option<f64>,
+    /// Rolling-shutter readout time of a whole frame, ms (0: global shutter); default the
+    /// profile's ([`crate::render::camera::CameraProfile::readout_ms`]).
+    #[serde(default)]
+    pub readout_ms: Option<f64>,
 }
 
 /// `[render]`: how camera images are made.

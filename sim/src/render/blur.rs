@@ -18,6 +18,13 @@
 //! gather approximation). Flow uses the pinhole focal lengths (lens distortion changes it
 //! by well under a pixel for the modelled cameras). Depth images are not blurred (a
 //! D435's infrared exposure is short).
+//!
+//! **Rolling shutter** ([`rolling_shutter`]) uses the same flow: a rolling-shutter sensor
+//! exposes row `v` at `δt_v = (v − (H−1)/2)/H · t_readout` after the frame's stamp (the
+//! stamp is the middle row's exposure centre), so the pixel shows what the global-shutter
+//! image shows at `p − ṗ·δt_v` (the scene point that moves to `p` by then). A camera
+//! yawing at `ω` skews a vertical edge by `f·ω·t_readout` pixels from top to bottom. The
+//! depth image is not warped (the D435's depth imagers are global shutter).
 
 use super::camera::RayTable;
 use super::shade::Frame;
@@ -135,9 +142,128 @@ pub fn motion_blur(
         });
 }
 
+/// Warps `frame.linear` in place to what a rolling-shutter sensor with a frame readout
+/// time `readout_s` records while the camera moves with `motion` (see the module
+/// documentation); arguments as for [`motion_blur`]. Bilinear gather, rows in parallel;
+/// no-op for a non-positive readout.
+pub fn rolling_shutter(
+    frame: &mut Frame,
+    scratch: &mut Vec<f32>,
+    rays: &RayTable,
+    fx_px: f64,
+    fy_px: f64,
+    motion: &CameraMotion,
+    readout_s: f64,
+) {
+    if readout_s.is_nan() || readout_s <= 0.0 {
+        return;
+    }
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    assert_eq!(
+        (w, h),
+        (rays.width as usize, rays.height as usize),
+        "frame and ray table sizes"
+    );
+    scratch.clear();
+    scratch.extend_from_slice(&frame.linear);
+    let sharp = &scratch[..];
+    let depth = &frame.depth_m;
+    let centre = (h as f64 - 1.0) / 2.0;
+    frame
+        .linear
+        .par_chunks_mut(3 * w)
+        .enumerate()
+        .for_each(|(v, row)| {
+            let dt = (v as f64 - centre) / h as f64 * readout_s;
+            for u in 0..w {
+                let i = v * w + u;
+                let dir = [rays.x[i], rays.y[i], rays.z[i]];
+                // Pixels moved over dt.
+                let [fu, fv] = flow_px(dir, depth[i], motion, dt, (fx_px, fy_px));
+                if fu.abs().max(fv.abs()) < 1e-3 {
+                    continue;
+                }
+                let px = (u as f64 - fu).clamp(0.0, (w - 1) as f64);
+                let py = (v as f64 - fv).clamp(0.0, (h - 1) as f64);
+                let (x0, y0) = (px as usize, py as usize);
+                let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+                let (ax, ay) = ((px - x0 as f64) as f32, (py - y0 as f64) as f32);
+                let at = |x: usize, y: usize, c: usize| sharp[3 * (y * w + x) + c];
+                for c in 0..3 {
+                    let top = at(x0, y0, c) + (at(x1, y0, c) - at(x0, y0, c)) * ax;
+                    let bottom = at(x0, y1, c) + (at(x1, y1, c) - at(x0, y1, c)) * ax;
+                    row[3 * u + c] = top + (bottom - top) * ay;
+                }
+            }
+        });
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rolling_shutter_skews_a_vertical_edge_by_f_omega_readout() {
+        // A far vertical edge (depth 0 = infinitely far: rotation only) at the image
+        // centre, black left, white right; the camera yaws at ω = 0.5 rad/s about its
+        // optical y axis; readout 30 ms; f = 300 px. Closed form: at x ≈ 0 the image moves
+        // at ẋ = −(1 + x²)·ω_y, so row v (exposed δt_v after the stamp) shows the edge at
+        // u_c − f·ω·δt_v: a slope of f·ω·t_readout / H px per row, 4.5 px from top to
+        // bottom. Measured: the edge position in each row from the row's sum (a unit-wide
+        // ramp at a contributes (w − 1) − a exactly), against the closed form within
+        // 0.01 px.
+        let (w, h) = (160u32, 200u32);
+        let intr = crate::render::camera::Intrinsics {
+            width: w,
+            height: h,
+            fx: 300.0,
+            fy: 300.0,
+            cx: 79.5,
+            cy: 99.5,
+            distortion: crate::render::camera::BrownConrady::NONE,
+        };
+        let rays = intr.pixel_rays();
+        let mut frame = Frame::new(w, h);
+        let edge = 79.5; // between columns 79 and 80
+        for v in 0..h as usize {
+            for u in 0..w as usize {
+                let c = if (u as f64) < edge { 0.0 } else { 1.0 };
+                frame.linear[3 * (v * w as usize + u)..][..3].fill(c);
+            }
+        }
+        let motion = CameraMotion {
+            linear_mps: Vector3::zeros(),
+            angular_radps: Vector3::new(0.0, 0.5, 0.0),
+        };
+        let (readout, omega, f) = (0.030, 0.5, 300.0);
+        let mut scratch = Vec::new();
+        let sharp = frame.linear.clone();
+        rolling_shutter(&mut frame, &mut scratch, &rays, 300.0, 300.0, &motion, 0.0);
+        assert_eq!(frame.linear, sharp, "no readout time: unchanged");
+        rolling_shutter(
+            &mut frame,
+            &mut scratch,
+            &rays,
+            300.0,
+            300.0,
+            &motion,
+            readout,
+        );
+        for v in 0..h as usize {
+            let row: Vec<f32> = (0..w as usize)
+                .map(|u| frame.linear[3 * (v * w as usize + u)])
+                .collect();
+            let sum: f64 = row.iter().map(|&x| f64::from(x)).sum();
+            let crossing = f64::from(w - 1) - sum + 0.5;
+            let dt = (v as f64 - 99.5) / f64::from(h) * readout;
+            // The sharp edge's 0.5 crossing lies halfway between columns 79 and 80.
+            let want = edge - f * omega * dt;
+            assert!(
+                (crossing - want).abs() < 0.01,
+                "row {v}: {crossing} vs {want}"
+            );
+        }
+    }
 
     #[test]
     fn flow_matches_finite_differences_of_the_projection() {

@@ -661,6 +661,19 @@ pub use crate::params::CameraProfile;
 
 /// The datasheet geometry of each named camera device.
 impl CameraProfile {
+    /// Rolling-shutter readout time of a whole frame, ms (0: a global shutter). The D435's
+    /// depth imagers (whose left image the `d435_depth` profile's colour companion is) and
+    /// the ZED X Mini are global shutter; the D435 colour imager (OV2740) and the ZED 2i
+    /// are rolling shutter. Their readout times are not published: 16 ms (D435 colour)
+    /// and 18 ms (ZED 2i) are assumptions of the order such sensors read a frame in.
+    pub fn readout_ms(self) -> f64 {
+        match self {
+            CameraProfile::D435Depth | CameraProfile::ZedXMini => 0.0,
+            CameraProfile::D435Color => 16.0,
+            CameraProfile::Zed2i => 18.0,
+        }
+    }
+
     /// The profile's default mode; see the [`CameraSpec`] constructors for the numbers and
     /// their sources.
     pub fn spec(self) -> CameraSpec {

@@ -20,7 +20,7 @@
 
 use super::{SensorContext, SensorModel, latency_from_ms, mount, require_rate};
 use crate::params::{CameraParams, ParamError, RenderParams};
-use crate::render::blur::{CameraMotion, motion_blur};
+use crate::render::blur::{CameraMotion, motion_blur, rolling_shutter};
 use crate::render::camera::{
     CameraProfile, CameraSpec, DepthScratch, FrameClock, ImageNoise, Intrinsics, RayTable,
     StereoDepthNoise,
@@ -70,6 +70,8 @@ pub struct Camera {
     frame: Frame,
     /// Exposure time for motion blur, s (0: sharp images).
     exposure_s: f64,
+    /// Rolling-shutter frame readout time, s (0: global shutter).
+    readout_s: f64,
     blur_scratch: Vec<f32>,
     depth_scratch: DepthScratch,
     depth_mm: Vec<u16>,
@@ -146,6 +148,13 @@ impl Camera {
         crate::params::require_in(
             &format!("{path}.exposure_ms"),
             exposure_ms,
+            0.0,
+            1e3 / rate_hz,
+        )?;
+        let readout_ms = p.readout_ms.unwrap_or(p.profile.readout_ms());
+        crate::params::require_in(
+            &format!("{path}.readout_ms"),
+            readout_ms,
             0.0,
             1e3 / rate_hz,
         )?;
@@ -229,6 +238,7 @@ impl Camera {
             latency,
             frame,
             exposure_s: exposure_ms * 1e-3,
+            readout_s: readout_ms * 1e-3,
             blur_scratch: Vec::new(),
             depth_scratch: DepthScratch::new(),
             depth_mm: vec![0; if wants_depth { n } else { 0 }],
@@ -268,12 +278,22 @@ impl SensorModel for Camera {
                 self.max_range_m,
                 &mut self.frame,
             );
-            if self.exposure_s > 0.0 {
+            if self.exposure_s > 0.0 || self.readout_s > 0.0 {
                 let k = truth.at_mount(&eye.body_from_optical);
                 let motion = CameraMotion {
                     linear_mps: k.world_from_sensor.rotation.inverse() * k.velocity_in_world,
                     angular_radps: k.angular_velocity_in_sensor,
                 };
+                // Each row at its own time, then each pixel smeared over its exposure.
+                rolling_shutter(
+                    &mut self.frame,
+                    &mut self.blur_scratch,
+                    &self.rays,
+                    self.intrinsics.fx,
+                    self.intrinsics.fy,
+                    &motion,
+                    self.readout_s,
+                );
                 motion_blur(
                     &mut self.frame,
                     &mut self.blur_scratch,
