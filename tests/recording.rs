@@ -950,13 +950,14 @@ fn replay_runs_the_recorded_slam_to_the_same_trajectories() {
     );
 }
 
-/// The first seconds of `scenarios/map-row.toml` at a lower resolution and rate.
+/// The first seconds of `scenarios/map-row.toml` at a lower resolution (the D435's
+/// smallest depth mode) and rate.
 fn short_map_row() -> LoadedScenario {
     let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/map-row.toml");
     let mut sc = LoadedScenario::load(&file).unwrap();
     sc.scenario.max_duration_s = 4.0;
     for c in &mut sc.scenario.sensors.cameras {
-        c.width = Some(320);
+        c.width = Some(424);
         c.height = Some(240);
         c.rate_hz = Some(3.0);
     }

@@ -69,6 +69,24 @@ fn flow_px(
     [f.0 * xd * exposure_s, f.1 * yd * exposure_s]
 }
 
+/// The RGB value of `image` (`w × h`, 3 values per pixel) at `(px, py)`: bilinear,
+/// clamped to the image (what the sensor saw just outside its edge is unknown; the edge
+/// pixel stands in for it).
+#[inline]
+fn bilinear(image: &[f32], w: usize, h: usize, px: f64, py: f64) -> [f32; 3] {
+    let px = px.clamp(0.0, (w - 1) as f64);
+    let py = py.clamp(0.0, (h - 1) as f64);
+    let (x0, y0) = (px as usize, py as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (fx, fy) = ((px - x0 as f64) as f32, (py - y0 as f64) as f32);
+    let at = |x: usize, y: usize, c: usize| image[3 * (y * w + x) + c];
+    std::array::from_fn(|c| {
+        let top = at(x0, y0, c) + (at(x1, y0, c) - at(x0, y0, c)) * fx;
+        let bottom = at(x0, y1, c) + (at(x1, y1, c) - at(x0, y1, c)) * fx;
+        top + (bottom - top) * fy
+    })
+}
+
 /// Blurs `frame.linear` in place for a camera moving with `motion` during an exposure of
 /// `exposure_s` centred on the frame's time; `rays` are the frame's pixel rays, `fx_px`
 /// and `fy_px` the focal lengths. `scratch` holds the sharp image meanwhile (grown on
@@ -97,21 +115,7 @@ pub fn motion_blur(
     scratch.extend_from_slice(&frame.linear);
     let sharp = &scratch[..];
     let depth = &frame.depth_m;
-    let sample = |px: f64, py: f64| -> [f32; 3] {
-        // Bilinear, clamped to the image (what the sensor saw just outside its edge is
-        // unknown; the edge pixel stands in for it).
-        let px = px.clamp(0.0, (w - 1) as f64);
-        let py = py.clamp(0.0, (h - 1) as f64);
-        let (x0, y0) = (px as usize, py as usize);
-        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-        let (fx, fy) = ((px - x0 as f64) as f32, (py - y0 as f64) as f32);
-        let at = |x: usize, y: usize, c: usize| sharp[3 * (y * w + x) + c];
-        std::array::from_fn(|c| {
-            let top = at(x0, y0, c) + (at(x1, y0, c) - at(x0, y0, c)) * fx;
-            let bottom = at(x0, y1, c) + (at(x1, y1, c) - at(x0, y1, c)) * fx;
-            top + (bottom - top) * fy
-        })
-    };
+    let sample = |px: f64, py: f64| bilinear(sharp, w, h, px, py);
     frame
         .linear
         .par_chunks_mut(3 * w)
@@ -183,17 +187,13 @@ pub fn rolling_shutter(
                 if fu.abs().max(fv.abs()) < 1e-3 {
                     continue;
                 }
-                let px = (u as f64 - fu).clamp(0.0, (w - 1) as f64);
-                let py = (v as f64 - fv).clamp(0.0, (h - 1) as f64);
-                let (x0, y0) = (px as usize, py as usize);
-                let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-                let (ax, ay) = ((px - x0 as f64) as f32, (py - y0 as f64) as f32);
-                let at = |x: usize, y: usize, c: usize| sharp[3 * (y * w + x) + c];
-                for c in 0..3 {
-                    let top = at(x0, y0, c) + (at(x1, y0, c) - at(x0, y0, c)) * ax;
-                    let bottom = at(x0, y1, c) + (at(x1, y1, c) - at(x0, y1, c)) * ax;
-                    row[3 * u + c] = top + (bottom - top) * ay;
-                }
+                row[3 * u..3 * u + 3].copy_from_slice(&bilinear(
+                    sharp,
+                    w,
+                    h,
+                    u as f64 - fu,
+                    v as f64 - fv,
+                ));
             }
         });
 }
