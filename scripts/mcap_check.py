@@ -7,7 +7,8 @@ Uses the `mcap` and `mcap-ros2-support` packages (pip install mcap mcap-ros2-sup
 which build their CDR decoders from the ros2msg schemas stored in the file, as Foxglove
 does. Fails (exit 1) if a file is not profile ros2, has no summary, a message does not
 decode, or a decoded field disagrees with what vinebench promises (NavSatFix status and
-covariance filled, /tf_static non-empty, ground truth present).
+covariance filled, no fix with covariance type UNKNOWN, GPSFix satellite lists and status
+consistent, /tf_static non-empty, ground truth present).
 """
 import math
 import sys
@@ -38,6 +39,25 @@ def check(path):
                     math.isfinite(c) for c in decoded.position_covariance
                 ):
                     problems.append(f"{channel.topic}: covariance not filled")
+            if schema.name == "sensor_msgs/msg/NavSatFix" and decoded.status.status < 0:
+                if decoded.position_covariance_type != 0:
+                    problems.append(f"{channel.topic}: no fix with a known covariance")
+            if schema.name == "gps_msgs/msg/GPSFix":
+                st = decoded.status
+                if st.satellites_used != len(st.satellite_used_prn):
+                    problems.append(f"{channel.topic}: satellites_used != its PRN list")
+                lists = (st.satellite_visible_prn, st.satellite_visible_z,
+                         st.satellite_visible_azimuth, st.satellite_visible_snr)
+                if st.satellites_visible != len(st.satellite_visible_prn) or len(
+                    {len(x) for x in lists}
+                ) != 1:
+                    problems.append(f"{channel.topic}: visible satellite lists disagree")
+                if not set(st.satellite_used_prn) <= set(st.satellite_visible_prn):
+                    problems.append(f"{channel.topic}: a used satellite is not visible")
+                if st.status not in (-1, 0, 19, 20):
+                    problems.append(f"{channel.topic}: status {st.status}")
+                if st.status >= 0 and not (0 < decoded.hdop < 50 and decoded.position_covariance_type == 3):
+                    problems.append(f"{channel.topic}: a fix without its DOP or covariance")
             if schema.name == "tf2_msgs/msg/TFMessage" and not decoded.transforms:
                 problems.append(f"{channel.topic}: empty TFMessage")
         if summary is not None and summary.statistics is not None:
