@@ -87,6 +87,20 @@ fn bilinear(image: &[f32], w: usize, h: usize, px: f64, py: f64) -> [f32; 3] {
     })
 }
 
+/// Checks `frame` against its ray table and copies its colour into `scratch`, the sharp
+/// image a warp gathers from while it rewrites the frame; returns (width, height).
+fn keep_sharp(frame: &Frame, scratch: &mut Vec<f32>, rays: &RayTable) -> (usize, usize) {
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    assert_eq!(
+        (w, h),
+        (rays.width as usize, rays.height as usize),
+        "frame and ray table sizes"
+    );
+    scratch.clear();
+    scratch.extend_from_slice(&frame.linear);
+    (w, h)
+}
+
 /// Blurs `frame.linear` in place for a camera moving with `motion` during an exposure of
 /// `exposure_s` centred on the frame's time; `rays` are the frame's pixel rays, `fx_px`
 /// and `fy_px` the focal lengths. `scratch` holds the sharp image meanwhile (grown on
@@ -105,14 +119,7 @@ pub fn motion_blur(
     if exposure_s.is_nan() || exposure_s <= 0.0 {
         return;
     }
-    let (w, h) = (frame.width as usize, frame.height as usize);
-    assert_eq!(
-        (w, h),
-        (rays.width as usize, rays.height as usize),
-        "frame and ray table sizes"
-    );
-    scratch.clear();
-    scratch.extend_from_slice(&frame.linear);
+    let (w, h) = keep_sharp(frame, scratch, rays);
     let sharp = &scratch[..];
     let depth = &frame.depth_m;
     let sample = |px: f64, py: f64| bilinear(sharp, w, h, px, py);
@@ -162,14 +169,7 @@ pub fn rolling_shutter(
     if readout_s.is_nan() || readout_s <= 0.0 {
         return;
     }
-    let (w, h) = (frame.width as usize, frame.height as usize);
-    assert_eq!(
-        (w, h),
-        (rays.width as usize, rays.height as usize),
-        "frame and ray table sizes"
-    );
-    scratch.clear();
-    scratch.extend_from_slice(&frame.linear);
+    let (w, h) = keep_sharp(frame, scratch, rays);
     let sharp = &scratch[..];
     let depth = &frame.depth_m;
     let centre = (h as f64 - 1.0) / 2.0;
