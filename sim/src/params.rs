@@ -442,8 +442,74 @@ pub struct SensorsParams {
     pub wheel_odom: WheelOdomParams,
     /// `[[sensors.cameras]]`: rendered cameras.
     pub cameras: Vec<CameraParams>,
+    /// `[sensors.stereo_depth]`: the light the depth cameras measure in.
+    pub stereo_depth: StereoDepthParams,
+    /// `[sensors.camera_exposure]`: auto-exposure and lens shading of colour images.
+    pub camera_exposure: CameraExposureParams,
 }
 default_from_section!(SensorsParams, "sensors");
+
+/// Light the D435 depth cameras measure in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthLighting {
+    /// The projector's dots texture every surface in range (the D435 error model alone).
+    Indoor,
+    /// Daylight washes the dots out: depth where the surface has texture
+    /// ([`crate::render::depth_light`]).
+    Sunlight,
+}
+
+/// `[sensors.stereo_depth]`: active stereo in daylight ([`crate::render::depth_light`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StereoDepthParams {
+    /// `indoor` or `sunlight`.
+    pub lighting: DepthLighting,
+    /// Band irradiance of one relative unit of the renderer's light, W/m².
+    pub ambient_w_m2: f64,
+    /// Projector optical power, mW.
+    pub projector_power_mw: f64,
+    /// Projector field of projection `[h, v]`, degrees.
+    pub projector_fov_deg: [f64; 2],
+    /// Contrast (σ/μ) of the dot pattern.
+    pub dot_contrast: f64,
+    /// Matching window edge, px (odd).
+    pub window_px: u32,
+    /// Mean level of the infrared frame under auto-exposure, fraction of full scale.
+    pub ae_level: f64,
+    /// Matching SNR at which half the pixels get depth.
+    pub snr_threshold: f64,
+    /// Width of the validity's logistic in `ln SNR`.
+    pub snr_softness: f64,
+    /// Matching SNR from which the datasheet disparity noise holds.
+    pub snr_reference: f64,
+}
+default_from_section!(StereoDepthParams, "sensors.stereo_depth");
+
+/// `[sensors.camera_exposure]`: how colour cameras expose ([`crate::render::exposure`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraExposureParams {
+    /// Auto-exposure for cameras without `exposure_ms`.
+    pub auto: bool,
+    /// Mean linear level the auto-exposure holds, fraction of full scale.
+    pub target_level: f64,
+    /// Time constant of the auto-exposure's response to a change of brightness, s.
+    pub time_constant_s: f64,
+    /// Exposure time at which a pixel value is radiance × `[render] exposure`, ms.
+    pub reference_exposure_ms: f64,
+    /// Shortest exposure time, ms.
+    pub min_exposure_ms: f64,
+    /// Longest exposure time, ms (at most the frame period).
+    pub max_exposure_ms: f64,
+    /// Largest analog gain once the exposure time is at its longest.
+    pub max_gain: f64,
+    /// Residual vignetting: image corners darkened by this share of the natural
+    /// `cos⁴θ` fall-off (0: flat, 1: no lens-shading correction).
+    pub vignetting: f64,
+}
+default_from_section!(CameraExposureParams, "sensors.camera_exposure");
 
 /// Named camera devices (their datasheet geometry: `CameraProfile::spec` in
 /// [`crate::render::camera`]).
@@ -495,8 +561,9 @@ pub struct CameraParams {
     /// Farthest range a colour pixel sees geometry, m (beyond it: sky).
     #[serde(default)]
     pub max_range_m: Option<f64>,
-    /// Exposure time, ms: colour images are blurred by the camera's motion over it
-    /// ([`crate::render::blur`]); 0 (the default) gives sharp images.
+    /// Fixed exposure time, ms: colour images are blurred by the camera's motion over it
+    /// ([`crate::render::blur`]) at the render's brightness. Default: the auto-exposure
+    /// of `[sensors.camera_exposure]` (or, with `auto = false`, 0: sharp images).
     #[serde(default)]
     pub exposure_ms: Option<f64>,
     /// Rolling-shutter readout time of a whole frame, ms (0: global shutter); default the

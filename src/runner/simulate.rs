@@ -320,9 +320,8 @@ pub fn setup(sc: &LoadedScenario) -> Result<Setup, RunError> {
     let mut sensors =
         build_sensors(&s.sensors, &s.faults, &ctx, sight).map_err(|e| sc.param_error(e))?;
     if let Some(r) = &renderer {
-        sensors.extend(
-            build_cameras(&s.sensors.cameras, &s.render, &ctx, r).map_err(|e| sc.param_error(e))?,
-        );
+        sensors
+            .extend(build_cameras(&s.sensors, &s.render, &ctx, r).map_err(|e| sc.param_error(e))?);
     }
     let estimator_error = |e: EstimatorError| match e {
         EstimatorError::InvalidParam {

@@ -38,6 +38,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use vinebench_msgs::{CameraInfoMsg, FrameId, Nanos};
 
+use super::depth_light::SunlightStereo;
 use super::trace::PACKET_SIZE;
 
 // ---------------------------------------------------------------------------------------
@@ -1039,15 +1040,43 @@ impl StereoDepthNoise {
         scratch: &mut DepthScratch,
         rng: &mut R,
     ) {
+        self.apply_in_light(width, height, truth_m, None, out_mm, scratch, rng);
+    }
+
+    /// As [`StereoDepthNoise::apply`], in daylight: `light` is the daylight model and
+    /// the matching SNR of every pixel ([`SunlightStereo::snr`]), which decides whether
+    /// the pixel is matched and scales its disparity noise (see
+    /// [`super::depth_light`]). `None` is the indoor case ([`StereoDepthNoise::apply`]):
+    /// the projector's texture everywhere. With `light`, one more `u64` is drawn per
+    /// frame (the key of the matching draws), after the others.
+    ///
+    /// # Panics
+    ///
+    /// If `truth_m`, `out_mm` or the SNR image does not hold `width·height` pixels.
+    #[allow(clippy::too_many_arguments)]
+    pub fn apply_in_light<R: Rng + ?Sized>(
+        &self,
+        width: u32,
+        height: u32,
+        truth_m: &[f32],
+        light: Option<(&SunlightStereo, &[f32])>,
+        out_mm: &mut [u16],
+        scratch: &mut DepthScratch,
+        rng: &mut R,
+    ) {
         let (w, h) = (width as usize, height as usize);
         let n = w * h;
         assert_eq!(truth_m.len(), n, "truth image size");
         assert_eq!(out_mm.len(), n, "output image size");
+        if let Some((_, snr)) = light {
+            assert_eq!(snr.len(), n, "SNR image size");
+        }
 
         // 1. The unit-variance disparity noise field, and the keys of the per-pixel
         //    dropout draws: by index, in parallel (thread-count independent).
         let normals = IndexedRng::new(rng.random());
         let dropout = IndexedRng::new(rng.random());
+        let matching = light.map(|_| IndexedRng::new(rng.random()));
         scratch.noise.resize(n, 0.0);
         scratch
             .noise
@@ -1122,7 +1151,16 @@ impl StereoDepthNoise {
                     if far_side || (near_side && (dropout.bits(i as u64) >> 32) < dropout_below) {
                         continue;
                     }
-                    let dm = d + self.subpixel * f64::from(noise[i]);
+                    let mut subpixel = self.subpixel;
+                    if let (Some((model, snr)), Some(keys)) = (light, &matching) {
+                        let s = f64::from(snr[i]);
+                        let u01 = (keys.bits(i as u64) >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
+                        if u01 >= model.valid_probability(s) {
+                            continue;
+                        }
+                        subpixel *= model.noise_factor(s);
+                    }
+                    let dm = d + subpixel * f64::from(noise[i]);
                     if dm.is_nan() || dm <= 0.0 {
                         continue;
                     }

@@ -15,8 +15,10 @@
 pub mod blur;
 pub mod bvh;
 pub mod camera;
+pub mod depth_light;
 #[cfg(feature = "embree")]
 pub mod embree;
+pub mod exposure;
 pub mod scene;
 pub mod shade;
 pub mod tag;

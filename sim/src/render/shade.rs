@@ -214,9 +214,25 @@ pub struct Frame {
     pub linear: Vec<f32>,
     /// Depth along the optical axis (range · ray z), m; 0 = no hit.
     pub depth_m: Vec<f32>,
+    /// Irradiance on the surface each pixel sees, in the [`Lighting`]'s relative units
+    /// (sun and sky, shadows included, before albedo and exposure: 1 makes white paper
+    /// full scale at exposure 1); 0 = no hit. The stereo depth model's ambient light
+    /// ([`super::camera::SunlightStereo`]).
+    pub irradiance: Vec<f32>,
 }
 
 impl Frame {
+    /// The frame's images, for [`super::depth_light::SunlightStereo::snr`].
+    pub fn view(&self) -> super::depth_light::FrameView<'_> {
+        super::depth_light::FrameView {
+            width: self.width,
+            height: self.height,
+            linear: &self.linear,
+            depth_m: &self.depth_m,
+            irradiance: &self.irradiance,
+        }
+    }
+
     /// A frame for images of `width × height`.
     pub fn new(width: u32, height: u32) -> Frame {
         let n = width as usize * height as usize;
@@ -225,6 +241,7 @@ impl Frame {
             height,
             linear: vec![0.0; 3 * n],
             depth_m: vec![0.0; n],
+            irradiance: vec![0.0; n],
         }
     }
 }
@@ -324,8 +341,9 @@ impl Renderer {
             .linear
             .par_chunks_mut(3 * band)
             .zip(frame.depth_m.par_chunks_mut(band))
+            .zip(frame.irradiance.par_chunks_mut(band))
             .enumerate()
-            .for_each(|(ty, (linear, depth))| {
+            .for_each(|(ty, ((linear, depth), irradiance))| {
                 let y0 = ty as u32 * TILE;
                 let mut packet = RayPacket {
                     origin,
@@ -362,9 +380,12 @@ impl Renderer {
                         let hit = &hits[lane];
                         let rgb = if hit.is_hit() {
                             depth[px] = hit.t * cam_dir[2][lane];
-                            self.shade(origin, d, hit, pixel_angle_rad)
+                            let (rgb, e) = self.shade(origin, d, hit, pixel_angle_rad);
+                            irradiance[px] = e;
+                            rgb
                         } else {
                             depth[px] = 0.0;
+                            irradiance[px] = 0.0;
                             self.sky(d)
                         };
                         let e = self.light.exposure;
@@ -399,7 +420,14 @@ impl Renderer {
         std::array::from_fn(|k| base[k] + disc + glow)
     }
 
-    fn shade(&self, origin: [f32; 3], d: [f32; 3], hit: &Hit, pixel_angle_rad: f32) -> [f32; 3] {
+    /// Radiance of a hit, and the irradiance on the surface (sun and sky).
+    fn shade(
+        &self,
+        origin: [f32; 3],
+        d: [f32; 3],
+        hit: &Hit,
+        pixel_angle_rad: f32,
+    ) -> ([f32; 3], f32) {
         let inst = hit.instance as usize;
         let mesh_index = self.scene.trace.instances[inst].mesh as usize;
         let sh = &self.scene.shading[mesh_index];
@@ -475,6 +503,6 @@ impl Renderer {
         }
         let ambient = self.light.sky * (0.6 + 0.4 * n[2]);
         let e = direct + ambient;
-        albedo.map(|a| a * e)
+        (albedo.map(|a| a * e), e)
     }
 }

@@ -672,3 +672,247 @@ fn a_loaded_world_mesh_renders_as_the_geometry_it_was_taken_from() {
     assert_eq!(e.path, "world.mesh.file");
     assert!(e.to_string().contains("triangle 0"), "{e}");
 }
+
+/// The daylight model of the defaults (`[sensors.stereo_depth]`, `[render]` noise).
+fn sunlight_model() -> super::depth_light::SunlightStereo {
+    super::depth_light::SunlightStereo::from_params(
+        &crate::params::StereoDepthParams::default(),
+        &RenderParams::default(),
+    )
+}
+
+/// Depth of `frame` through the D435 model, indoors (`None`) or in daylight.
+fn measure_depth(
+    frame: &Frame,
+    intr: &Intrinsics,
+    model: &StereoDepthNoise,
+    light: Option<&super::depth_light::SunlightStereo>,
+    seed: u64,
+) -> Vec<u16> {
+    let mut snr = vec![0.0f32; intr.pixel_count()];
+    if let Some(l) = light {
+        l.snr(
+            frame.view(),
+            &mut snr,
+            &mut super::depth_light::SnrScratch::default(),
+        );
+    }
+    let mut mm = vec![0u16; intr.pixel_count()];
+    model.apply_in_light(
+        intr.width,
+        intr.height,
+        &frame.depth_m,
+        light.map(|l| (l, &snr[..])),
+        &mut mm,
+        &mut DepthScratch::new(),
+        &mut ChaCha8Rng::seed_from_u64(seed),
+    );
+    mm
+}
+
+/// A plain carton plane seen straight on: no texture of its own, so the share of pixels
+/// with depth is the closed-form probability of the projector's dots alone against the
+/// ambient light (irradiance on the plane from the lighting's formula), at three
+/// distances; its depth noise is the datasheet's times the SNR factor.
+#[test]
+fn a_plain_surface_gets_depth_with_the_closed_form_probability_of_the_projector() {
+    let model_light = sunlight_model();
+    let spec = CameraSpec::d435_depth(super::camera::D435DepthMode::W848H480, 15.0);
+    let intr = spec.intrinsics;
+    let st = spec.stereo.expect("the D435 has a depth unit");
+    let model = StereoDepthNoise::new(&intr, &st);
+    // Dusk: no sun, a dim sky, so the projector decides within a couple of metres.
+    let dusk = Lighting {
+        sun: 0.0,
+        sky: 0.01,
+        ..lighting()
+    };
+    let scene = plane_scene(50.0, 0.0, Material::Carton);
+    let caster = crate::render::build_default(&scene.trace);
+    let r = Renderer::new(scene, caster, dusk, 0.05, 7);
+    // Sky on an upward surface: sky·(0.6 + 0.4·n_z) = 0.01.
+    let e_w_m2 = 0.01 * model_light.ambient_w_m2;
+    let mut seen = Vec::new();
+    for z in [1.0, 1.5, 2.0] {
+        let f = render(&r, &intr, &looking_down(z));
+        let indoor = measure_depth(&f, &intr, &model, None, 11);
+        let day = measure_depth(&f, &intr, &model, Some(&model_light), 11);
+        // The pixels the indoor model keeps (it drops only the left invalid band here).
+        let kept: Vec<usize> = (0..indoor.len()).filter(|&i| indoor[i] > 0).collect();
+        let valid = kept.iter().filter(|&&i| day[i] > 0).count();
+        let share = valid as f64 / kept.len() as f64;
+        // Closed form: uniform albedo and light, every pixel at the mean level.
+        let snr = model_light.snr_of(model_light.contrast(0.0, e_w_m2, z), model_light.ae_level);
+        let p = model_light.valid_probability(snr);
+        // Binomial 5σ (the draws are independent per pixel), plus range-gate losses
+        // at low SNR where the noise is large.
+        let sigma = (p * (1.0 - p) / kept.len() as f64).sqrt();
+        assert!(
+            (share - p).abs() < 5.0 * sigma + 0.01,
+            "z {z} m: {share:.4} of pixels with depth, closed form {p:.4} (SNR {snr:.2})"
+        );
+        seen.push(p);
+        if z == 1.0 {
+            let rms = (kept
+                .iter()
+                .filter(|&&i| day[i] > 0)
+                .map(|&i| (f64::from(day[i]) * 1e-3 - z).powi(2))
+                .sum::<f64>()
+                / valid as f64)
+                .sqrt();
+            let expected = model.rms_m(z) * model_light.noise_factor(snr);
+            assert!(
+                (rms / expected - 1.0).abs() < 0.1,
+                "RMS {rms} m, expected {expected} m"
+            );
+        }
+    }
+    // The projector's range: most pixels at 1 m, few at 2 m.
+    assert!(seen[0] > 0.8 && seen[2] < 0.3, "{seen:?}");
+}
+
+/// The box-occluder scene in the sun: the plain carton box gets (almost) no depth, the
+/// textured vines and soil around it keep theirs; indoors the box has depth.
+#[test]
+fn a_plain_carton_in_sunlight_has_holes_where_the_vines_keep_depth() {
+    let mut p = WorldParams::default();
+    p.rows.count = 2;
+    p.rows.length_m = 12.0;
+    p.rows.yaw_deg = 0.0;
+    p.terrain.margin_m = 5.0;
+    p.headlands.width_m = 3.0;
+    p.occluders = vec![crate::params::OccluderParams {
+        size_m: [0.6, 0.4, 0.5],
+        at: RowPlacement {
+            row: 0,
+            s_m: 6.0,
+            offset_m: 1.25,
+            yaw_deg: 0.0,
+        },
+    }];
+    let world = World::generate(2, &p).expect("valid world");
+    let r = world_renderer(&world);
+    let spec = CameraSpec::d435_depth(super::camera::D435DepthMode::W848H480, 15.0);
+    let intr = spec.intrinsics;
+    let st = spec.stereo.expect("the D435 has a depth unit");
+    let model = StereoDepthNoise::new(&intr, &st);
+    let light = sunlight_model();
+    let rays = intr.pixel_rays();
+    // Two views of the box, 1.5 to 2.5 m away: from the lane (its shaded end face) and
+    // from beside the row (its sunlit long face, the sun in the south-south-east).
+    let g = world.terrain.height_at(4.0, 1.25);
+    let views = [
+        look_at(Vector3::new(4.0, 1.25, g + 0.5), Vector3::x()),
+        look_at(
+            Vector3::new(5.2, -0.2, g + 0.6),
+            Vector3::new(0.8, 1.45, 0.0),
+        ),
+    ];
+    let (mut carton, mut carton_day, mut carton_indoor) = (0usize, 0usize, 0usize);
+    let (mut carton_sunlit, mut carton_sunlit_day) = (0usize, 0usize);
+    let (mut textured, mut textured_day, mut textured_indoor) = (0usize, 0usize, 0usize);
+    for (k, pose) in views.iter().enumerate() {
+        let f = render(&r, &intr, pose);
+        let indoor = measure_depth(&f, &intr, &model, None, 5 + k as u64);
+        let day = measure_depth(&f, &intr, &model, Some(&light), 5 + k as u64);
+        {
+            // The matching SNR over the view's surfaces (docs/PERFORMANCE.md quotes it).
+            let mut snr = vec![0.0f32; intr.pixel_count()];
+            light.snr(
+                f.view(),
+                &mut snr,
+                &mut super::depth_light::SnrScratch::default(),
+            );
+            let mut v: Vec<f32> = snr.iter().copied().filter(|&x| x > 0.0).collect();
+            v.sort_by(f32::total_cmp);
+            let q = |p: f64| v[((v.len() - 1) as f64 * p) as usize];
+            eprintln!(
+                "view {k}: matching SNR quantiles 5/25/50/75/95 %: {:.0} {:.0} {:.0} {:.0} {:.0}",
+                q(0.05),
+                q(0.25),
+                q(0.5),
+                q(0.75),
+                q(0.95)
+            );
+        }
+        let o = pose.translation.vector - r.scene().trace.origin_in_world;
+        let origin = [o.x as f32, o.y as f32, o.z as f32];
+        let rot = pose.rotation;
+        // Pixels whose whole 7×7 matching window sees one material (the window
+        // straddling an outline sees the outline's contrast, and matches).
+        let w = intr.width as usize;
+        let mut material = vec![None; intr.pixel_count()];
+        for v in 0..intr.height {
+            for u in 0..intr.width {
+                let d = rays.dir(u, v);
+                let dw = rot * Vector3::new(f64::from(d[0]), f64::from(d[1]), f64::from(d[2]));
+                let hit =
+                    r.caster()
+                        .cast_ray(origin, [dw.x as f32, dw.y as f32, dw.z as f32], 0.0, 50.0);
+                material[v as usize * w + u as usize] =
+                    hit.is_hit().then(|| r.scene().material_of(&hit));
+            }
+        }
+        for v in 3..intr.height as usize - 3 {
+            for u in 3..w - 3 {
+                let i = v * w + u;
+                let Some(m) = material[i] else { continue };
+                let uniform = (v - 3..=v + 3)
+                    .all(|vv| (u - 3..=u + 3).all(|uu| material[vv * w + uu] == Some(m)));
+                if !uniform {
+                    continue;
+                }
+                match m {
+                    // Inside one face (the window across the edge between two faces, lit
+                    // differently, sees that edge's contrast, as a matcher does).
+                    Material::Carton
+                        if (v - 3..=v + 3).all(|vv| {
+                            (u - 3..=u + 3).all(|uu| f.irradiance[vv * w + uu] == f.irradiance[i])
+                        }) =>
+                    {
+                        carton += 1;
+                        carton_day += usize::from(day[i] > 0);
+                        carton_indoor += usize::from(indoor[i] > 0);
+                        if f.irradiance[i] > 0.5 {
+                            carton_sunlit += 1;
+                            carton_sunlit_day += usize::from(day[i] > 0);
+                        }
+                    }
+                    Material::Leaf | Material::Soil => {
+                        textured += 1;
+                        textured_day += usize::from(day[i] > 0);
+                        textured_indoor += usize::from(indoor[i] > 0);
+                    }
+                    _ => {}
+                }
+            }
+        }
+    }
+    let share = |a: usize, b: usize| a as f64 / b.max(1) as f64;
+    eprintln!(
+        "carton {carton} px: depth indoors {:.3}, in sun {:.3} (sunlit faces {carton_sunlit} px: {:.3}); \
+         vines and soil {textured} px: indoors {:.3}, in sun {:.3}",
+        share(carton_indoor, carton),
+        share(carton_day, carton),
+        share(carton_sunlit_day, carton_sunlit),
+        share(textured_indoor, textured),
+        share(textured_day, textured)
+    );
+    assert!(carton > 3000 && carton_sunlit > 1000 && textured > 20_000);
+    assert!(
+        share(carton_indoor, carton) > 0.9,
+        "indoors the box has depth"
+    );
+    assert!(
+        share(carton_day, carton) < 0.1,
+        "in the sun the box has holes"
+    );
+    assert!(
+        share(carton_sunlit_day, carton_sunlit) < 0.02,
+        "sunlit carton"
+    );
+    assert!(
+        share(textured_day, textured) > 0.9 * share(textured_indoor, textured),
+        "vines and soil keep their depth in the sun"
+    );
+}

@@ -2,8 +2,12 @@
 //! high-resolution tag camera (ZED X mini-like).
 //!
 //! Each camera runs free on its own [`FrameClock`] (random start offset within a period,
-//! per-frame period jitter); stamps are exposure-centre times, the pose is the truth at
-//! the stamp (no motion blur). Per frame it publishes, RealSense/ZED style:
+//! per-frame period jitter); stamps are exposure-centre times. Per frame the camera
+//! renders the truth at the stamp, then, like its sensor: rolling-shutter rows
+//! ([`rolling_shutter`]), motion blur over the exposure time ([`motion_blur`]), the
+//! exposure's gain and residual vignetting ([`crate::render::exposure`]: an auto-exposure
+//! loop with a time constant unless the camera sets `exposure_ms`), shot and read noise
+//! at the analog gain, sRGB. Per frame it publishes, RealSense/ZED style:
 //!
 //! | camera | topics |
 //! |---|---|
@@ -11,19 +15,29 @@
 //! | RGB-D depth | `/<name>/aligned_depth_to_color/image_raw` (`16UC1`, mm, 0 = none) |
 //! | stereo pair | `/<name>/left/image_rect_color`, `/<name>/right/image_rect_color` and their `camera_info` |
 //!
-//! Depth is rendered from the colour camera's own rays (aligned by construction) and
+//! Depth is rendered from the colour camera's own rays (aligned by construction, from the
+//! sharp render: the D435's depth imagers are global shutter with short exposures) and
 //! passed through the D435 error model ([`StereoDepthNoise`]): disparity noise giving
-//! `RMS(z) = z²·subpixel/(f·b)`, holes at depth edges, range limits, millimetre steps.
+//! `RMS(z) = z²·subpixel/(f·b)`, holes at depth edges, range limits, millimetre steps;
+//! in daylight (`[sensors.stereo_depth] lighting = "sunlight"`) also holes where the
+//! surface has no texture of its own ([`crate::render::depth_light`]).
 //! Colour gets shot and read noise ([`ImageNoise`]) before sRGB encoding. Random streams:
 //! `sensors.camera.<name>.clock` (timing) and `sensors.camera.<name>.noise` (pixels), so
 //! image noise never shifts a stamp.
 
 use super::{SensorContext, SensorModel, latency_from_ms, mount, require_rate};
-use crate::params::{CameraParams, ParamError, RenderParams};
+use crate::params::{
+    CameraExposureParams, CameraParams, DepthLighting, ParamError, RenderParams, StereoDepthParams,
+    require_in, require_positive,
+};
 use crate::render::blur::{CameraMotion, motion_blur, rolling_shutter};
 use crate::render::camera::{
     CameraProfile, CameraSpec, DepthScratch, FrameClock, ImageNoise, Intrinsics, RayTable,
     StereoDepthNoise,
+};
+use crate::render::depth_light::{SnrScratch, SunlightStereo};
+use crate::render::exposure::{
+    AutoExposure, Exposure, ExposureLimits, apply_gain, noise_at_gain, vignetting,
 };
 use crate::render::shade::{Frame, Renderer};
 use crate::rng;
@@ -39,6 +53,55 @@ pub const DEFAULT_JITTER_MS: f64 = 0.5;
 pub const DEFAULT_LATENCY_MS: f64 = 30.0;
 /// Default farthest range of a colour pixel, m.
 pub const DEFAULT_MAX_RANGE_M: f64 = 200.0;
+
+/// Checks `[sensors.stereo_depth]` and `[sensors.camera_exposure]`, naming the key.
+pub fn check_light(
+    depth: &StereoDepthParams,
+    exposure: &CameraExposureParams,
+) -> Result<(), ParamError> {
+    let d = |k: &str| format!("sensors.stereo_depth.{k}");
+    require_in(&d("ambient_w_m2"), depth.ambient_w_m2, 0.0, 1e5)?;
+    require_in(&d("projector_power_mw"), depth.projector_power_mw, 0.0, 1e5)?;
+    for (k, fov) in depth.projector_fov_deg.iter().enumerate() {
+        require_in(
+            &format!("{}[{k}]", d("projector_fov_deg")),
+            *fov,
+            1.0,
+            179.0,
+        )?;
+    }
+    require_in(&d("dot_contrast"), depth.dot_contrast, 0.0, 100.0)?;
+    if depth.window_px.is_multiple_of(2) || depth.window_px > 31 {
+        return Err(ParamError::new(
+            d("window_px"),
+            "an odd window edge in 1..=31 px",
+            depth.window_px,
+        ));
+    }
+    require_in(&d("ae_level"), depth.ae_level, 1e-3, 1.0)?;
+    require_positive(&d("snr_threshold"), depth.snr_threshold)?;
+    require_in(&d("snr_softness"), depth.snr_softness, 1e-3, 10.0)?;
+    require_positive(&d("snr_reference"), depth.snr_reference)?;
+    let e = |k: &str| format!("sensors.camera_exposure.{k}");
+    require_in(&e("target_level"), exposure.target_level, 1e-3, 1.0)?;
+    require_in(&e("time_constant_s"), exposure.time_constant_s, 1e-3, 1e3)?;
+    require_in(
+        &e("reference_exposure_ms"),
+        exposure.reference_exposure_ms,
+        1e-4,
+        1e4,
+    )?;
+    require_in(&e("min_exposure_ms"), exposure.min_exposure_ms, 1e-4, 1e4)?;
+    require_in(
+        &e("max_exposure_ms"),
+        exposure.max_exposure_ms,
+        exposure.min_exposure_ms,
+        1e4,
+    )?;
+    require_in(&e("max_gain"), exposure.max_gain, 1.0, 1e4)?;
+    require_in(&e("vignetting"), exposure.vignetting, 0.0, 1.0)?;
+    Ok(())
+}
 
 /// One eye of a camera: where it is and what it publishes.
 #[derive(Debug)]
@@ -68,8 +131,16 @@ pub struct Camera {
     noise_rng: ChaCha8Rng,
     latency: Nanos,
     frame: Frame,
-    /// Exposure time for motion blur, s (0: sharp images).
+    /// Manual exposure time for motion blur, s (0: sharp images); unused with `ae`.
     exposure_s: f64,
+    /// The auto-exposure loop (`None`: manual exposure at the render's brightness).
+    ae: Option<AutoExposure>,
+    /// Residual vignetting factor per pixel (empty: none).
+    vignette: Vec<f32>,
+    /// The daylight stereo model of the depth image (`None`: indoor).
+    sunlight: Option<SunlightStereo>,
+    snr: Vec<f32>,
+    snr_scratch: SnrScratch,
     /// Rolling-shutter frame readout time, s (0: global shutter).
     readout_s: f64,
     blur_scratch: Vec<f32>,
@@ -78,14 +149,17 @@ pub struct Camera {
 }
 
 impl Camera {
-    /// Builds camera `index` of `[[sensors.cameras]]`.
+    /// Builds camera `index` of `[[sensors.cameras]]`, with the scenario's
+    /// `[sensors.stereo_depth]` and `[sensors.camera_exposure]`.
     pub fn new(
         p: &CameraParams,
         index: usize,
         render: &RenderParams,
+        light: (&StereoDepthParams, &CameraExposureParams),
         ctx: &SensorContext,
         renderer: Arc<Renderer>,
     ) -> Result<Camera, ParamError> {
+        let (stereo_depth, exposure) = light;
         let path = format!("sensors.cameras[{index}]");
         if p.name.is_empty()
             || !p
@@ -151,6 +225,16 @@ impl Camera {
             0.0,
             1e3 / rate_hz,
         )?;
+        let ae = (exposure.auto && p.exposure_ms.is_none()).then(|| {
+            AutoExposure::new(ExposureLimits {
+                target_level: exposure.target_level,
+                time_constant_s: exposure.time_constant_s,
+                reference_s: exposure.reference_exposure_ms * 1e-3,
+                min_s: exposure.min_exposure_ms * 1e-3,
+                max_s: exposure.max_exposure_ms.min(1e3 / rate_hz) * 1e-3,
+                max_gain: exposure.max_gain,
+            })
+        });
         let readout_ms = p.readout_ms.unwrap_or(p.profile.readout_ms());
         crate::params::require_in(
             &format!("{path}.readout_ms"),
@@ -197,6 +281,8 @@ impl Camera {
         let wants_depth = p
             .depth
             .unwrap_or(p.profile == CameraProfile::D435Depth && p.right_frame.is_none());
+        let sunlight = (wants_depth && stereo_depth.lighting == DepthLighting::Sunlight)
+            .then(|| SunlightStereo::from_params(stereo_depth, render));
         let depth = match (wants_depth, spec.stereo) {
             (false, _) => None,
             (true, Some(st)) => Some((
@@ -213,6 +299,11 @@ impl Camera {
         };
         let intrinsics = spec.intrinsics;
         let rays = intrinsics.pixel_rays();
+        let vignette = if exposure.vignetting > 0.0 {
+            vignetting(&rays, exposure.vignetting)
+        } else {
+            Vec::new()
+        };
         let mut clock_rng =
             rng::stream(ctx.master_seed, &format!("sensors.camera.{}.clock", p.name));
         let clock =
@@ -238,6 +329,11 @@ impl Camera {
             latency,
             frame,
             exposure_s: exposure_ms * 1e-3,
+            ae,
+            vignette,
+            snr: vec![0.0; if sunlight.is_some() { n } else { 0 }],
+            sunlight,
+            snr_scratch: SnrScratch::default(),
             readout_s: readout_ms * 1e-3,
             blur_scratch: Vec::new(),
             depth_scratch: DepthScratch::new(),
@@ -268,7 +364,10 @@ impl SensorModel for Camera {
     fn sample(&mut self, truth: &TruthSample, out: &mut Vec<TimedMessage>) {
         let stamp = self.clock.next(&mut self.clock_rng);
         let arrival = stamp + self.latency;
+        let t_s = stamp.as_secs_f64();
         let (w, h) = (self.intrinsics.width, self.intrinsics.height);
+        // One exposure for every eye of the frame (a stereo pair's sensors share it).
+        let mut exposure: Option<Exposure> = None;
         for (k, eye) in self.eyes.iter().enumerate() {
             let world_from_optical = truth.world_from_body * eye.body_from_optical;
             self.renderer.render(
@@ -278,7 +377,29 @@ impl SensorModel for Camera {
                 self.max_range_m,
                 &mut self.frame,
             );
-            if self.exposure_s > 0.0 || self.readout_s > 0.0 {
+            if k == 0
+                && self.depth.is_some()
+                && let Some(model) = &self.sunlight
+            {
+                // The depth imagers' view: sharp (global shutter, short exposure).
+                model.snr(self.frame.view(), &mut self.snr, &mut self.snr_scratch);
+            }
+            let e = match &mut self.ae {
+                Some(ae) => {
+                    let frame = &self.frame;
+                    let e = *exposure.get_or_insert_with(|| ae.choose(t_s, frame));
+                    if k == 0 {
+                        ae.metered(t_s, e, frame);
+                    }
+                    e
+                }
+                None => Exposure {
+                    time_s: self.exposure_s,
+                    analog_gain: 1.0,
+                    gain: 1.0,
+                },
+            };
+            if e.time_s > 0.0 || self.readout_s > 0.0 {
                 let k = truth.at_mount(&eye.body_from_optical);
                 let motion = CameraMotion {
                     linear_mps: k.world_from_sensor.rotation.inverse() * k.velocity_in_world,
@@ -301,12 +422,18 @@ impl SensorModel for Camera {
                     self.intrinsics.fx,
                     self.intrinsics.fy,
                     &motion,
-                    self.exposure_s,
+                    e.time_s,
                 );
             }
+            if e.gain != 1.0 || !self.vignette.is_empty() {
+                apply_gain(&mut self.frame, e.gain, &self.vignette);
+            }
             let mut rgb = vec![0u8; self.frame.linear.len()];
-            self.noise
-                .apply_encode_srgb(&self.frame.linear, &mut rgb, &mut self.noise_rng);
+            noise_at_gain(&self.noise, e.analog_gain).apply_encode_srgb(
+                &self.frame.linear,
+                &mut rgb,
+                &mut self.noise_rng,
+            );
             out.push(TimedMessage {
                 arrival,
                 msg: Message::Image(ImageMsg {
@@ -331,10 +458,11 @@ impl SensorModel for Camera {
             if k == 0
                 && let Some((model, topic)) = &self.depth
             {
-                model.apply(
+                model.apply_in_light(
                     w,
                     h,
                     &self.frame.depth_m,
+                    self.sunlight.as_ref().map(|m| (m, &self.snr[..])),
                     &mut self.depth_mm,
                     &mut self.depth_scratch,
                     &mut self.noise_rng,

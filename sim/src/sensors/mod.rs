@@ -102,11 +102,13 @@ pub fn build_sensors(
 /// Builds the `[[sensors.cameras]]`, rendering with `renderer`; camera `i`'s problems
 /// are reported as `sensors.cameras[i].<key>`.
 pub fn build_cameras(
-    cameras: &[crate::params::CameraParams],
+    sensors: &crate::params::SensorsParams,
     render: &crate::params::RenderParams,
     ctx: &SensorContext,
     renderer: &std::sync::Arc<crate::render::shade::Renderer>,
 ) -> Result<Vec<Box<dyn SensorModel>>, ParamError> {
+    let cameras = &sensors.cameras;
+    camera::check_light(&sensors.stereo_depth, &sensors.camera_exposure)?;
     if cameras.len() > MAX_CAMERAS {
         return Err(ParamError::new(
             "sensors.cameras",
@@ -128,6 +130,7 @@ pub fn build_cameras(
             p,
             i,
             render,
+            (&sensors.stereo_depth, &sensors.camera_exposure),
             ctx,
             renderer.clone(),
         )?));
