@@ -17,7 +17,8 @@ use std::time::Instant;
 use vinebench_msgs::{Message, StaticTransforms};
 use vinebench_onboard::estimator::{EstimatorKind, EstimatorOutput, EstimatorSet};
 use vinebench_onboard::mapper::{
-    COLOR_SUFFIX, DEPTH_SUFFIX, INFO_SUFFIX, Map, Mapper, MapperError, MapperParams, MapperStats,
+    COLOR_SUFFIX, DEPTH_SUFFIX, FinishTiming, INFO_SUFFIX, Map, Mapper, MapperError, MapperParams,
+    MapperStats,
 };
 use vinebench_sim::render::camera::CameraProfile;
 use vinebench_sim::render::shade::Renderer;
@@ -55,6 +56,8 @@ pub struct SourceMap {
     pub source: String,
     /// The map.
     pub map: Map,
+    /// Wall-clock seconds of finishing it, step by step (`timing.json`).
+    pub timing: FinishTiming,
 }
 
 /// What the mapping stage hands to scoring and the run folder.
@@ -70,6 +73,8 @@ pub struct MappingOutput {
     /// Wall-clock seconds spent mapping (integration during the run, then finishing);
     /// for `timing.json`, not the report.
     pub wall_s: f64,
+    /// Of `wall_s`: integrating frames during the run.
+    pub during_run_s: f64,
 }
 
 impl std::fmt::Debug for MappingOutput {
@@ -229,9 +234,11 @@ impl MappingStage {
             let Some(e) = estimates.iter().find(|e| e.name == name) else {
                 continue;
             };
+            let (map, timing) = m.mapper.finish_timed(&e.trajectory)?;
             maps.push(SourceMap {
                 source: name.to_string(),
-                map: m.mapper.finish(&e.trajectory)?,
+                map,
+                timing,
             });
         }
         Ok(MappingOutput {
@@ -239,6 +246,7 @@ impl MappingStage {
             scoring: self.scoring,
             truth,
             wall_s: self.busy_s + started.elapsed().as_secs_f64(),
+            during_run_s: self.busy_s,
         })
     }
 }

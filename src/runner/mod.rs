@@ -150,7 +150,9 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
         let p = dir.join(format!("ground_truth_{}.tum", c.model.name()));
         scoring::tum::write_tum(&p, &c.truth).map_err(io_err(&p))?;
     }
+    let scoring_started = Instant::now();
     let scores = score(sc, &sim)?;
+    let scoring_s = scoring_started.elapsed().as_secs_f64();
     if !sim.slam.is_empty() {
         let t0 = sim.truth.first().map_or(Nanos(0), |s| s.0);
         let named: Vec<(&str, &scoring::loops::LoopScore)> =
@@ -170,9 +172,17 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
         "real_time_factor": if wall_s > 0.0 { sim.duration_s / wall_s } else { f64::INFINITY },
         "threads": rayon::current_num_threads(),
     });
+    // After wall_s (which ends with the simulation and the maps' finishing): scoring
+    // trajectories and maps (map scoring dominates where maps are built).
+    timing["scoring_s"] = serde_json::json!(scoring_s);
     if let Some(m) = &sim.mapping {
-        // Part of wall_s: integrating frames during the run and finishing the maps.
+        // Part of wall_s: integrating frames during the run and finishing the maps; of
+        // it, the integration during the run and each map's finishing steps.
         timing["mapping_s"] = serde_json::json!(m.wall_s);
+        timing["mapping_during_run_s"] = serde_json::json!(m.during_run_s);
+        for sm in &m.maps {
+            timing[format!("mapping_finish_{}", sm.source)] = serde_json::json!(sm.timing);
+        }
     }
     for o in &sim.slam {
         // Part of wall_s: feature extraction, tracking and local BA of each SLAM.

@@ -716,8 +716,24 @@ impl Mapper {
 
     /// Integrates what `trajectory` covers, skips the rest (counted), and builds the
     /// map: attributes, normals and (if enabled) the mesh.
-    pub fn finish(mut self, trajectory: &Trajectory) -> Result<Map, MapperError> {
+    pub fn finish(self, trajectory: &Trajectory) -> Result<Map, MapperError> {
+        self.finish_timed(trajectory).map(|(map, _)| map)
+    }
+
+    /// As [`Mapper::finish`], with the wall-clock time of each step (for timing files,
+    /// never for reports: it varies from run to run).
+    pub fn finish_timed(
+        mut self,
+        trajectory: &Trajectory,
+    ) -> Result<(Map, FinishTiming), MapperError> {
+        let mut timing = FinishTiming::default();
+        let mut clock = std::time::Instant::now();
+        let mut lap = |slot: &mut f64| {
+            *slot = clock.elapsed().as_secs_f64();
+            clock = std::time::Instant::now();
+        };
         self.integrate(trajectory)?;
+        lap(&mut timing.integrate_s);
         self.stats.frames_outside_trajectory += self.ready.len() as u64;
         self.stats.frames_incomplete += self.partial.values().map(|m| m.len() as u64).sum::<u64>();
         let mut stats = self.stats;
@@ -729,10 +745,13 @@ impl Mapper {
             viewpoints,
         } = self.grid.into_points(params.min_points_per_voxel);
         stats.voxels_sparse += occupied - positions.len() as u64;
+        lap(&mut timing.points_s);
         let grvi: Vec<f32> = colors.iter().map(|c| grvi_of(*c)).collect();
         let elevation = elevation(&positions, params.ground_cell_m, params.ground_percentile);
+        lap(&mut timing.attributes_s);
         let normals = normals::estimate_normals(&positions, &viewpoints, params.normal_neighbours);
         voxel::release_freed_memory();
+        lap(&mut timing.normals_s);
         stats.voxels = positions.len() as u64;
         stats.vegetation_points = grvi
             .iter()
@@ -754,13 +773,15 @@ impl Mapper {
         } else {
             None
         };
-        Ok(Map {
+        lap(&mut timing.mesh_s);
+        let map = Map {
             cloud,
             viewpoints,
             mesh,
             stats,
             grvi_threshold: params.grvi_threshold as f32,
-        })
+        };
+        Ok((map, timing))
     }
 }
 
@@ -851,6 +872,21 @@ fn mesh_cloud(cloud: &PointCloud, params: &MapperParams) -> (TriangleMesh, usize
     let boundary = bpa::boundary_edges(&mesh.triangles);
     voxel::release_freed_memory();
     (mesh, samples, boundary)
+}
+
+/// Wall-clock seconds of the steps of [`Mapper::finish_timed`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct FinishTiming {
+    /// Integrating the frames the trajectory had not covered yet.
+    pub integrate_s: f64,
+    /// Voxels to points (centroids, colours, viewpoints; sparse voxels left out).
+    pub points_s: f64,
+    /// GRVI and elevation.
+    pub attributes_s: f64,
+    /// Normals (k nearest neighbours, oriented to the viewpoints).
+    pub normals_s: f64,
+    /// Poisson-disk sampling and Ball-Pivoting meshing (0 without a mesh).
+    pub mesh_s: f64,
 }
 
 /// The finished map.

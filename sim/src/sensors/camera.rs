@@ -230,7 +230,7 @@ impl Camera {
                 target_level: exposure.target_level,
                 time_constant_s: exposure.time_constant_s,
                 reference_s: exposure.reference_exposure_ms * 1e-3,
-                min_s: exposure.min_exposure_ms * 1e-3,
+                min_s: exposure.min_exposure_ms.min(1e3 / rate_hz) * 1e-3,
                 max_s: exposure.max_exposure_ms.min(1e3 / rate_hz) * 1e-3,
                 max_gain: exposure.max_gain,
             })
