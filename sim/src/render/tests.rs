@@ -449,8 +449,9 @@ fn embree_and_the_builtin_bvh_render_the_same_depth_image() {
     }
 }
 
-#[test]
-fn occluder_boxes_and_tag_boards_stand_where_the_scenario_puts_them() {
+/// Two 12 m rows along x with a 0.6 × 0.4 × 0.5 m carton box in the lane beside row 0
+/// (centre (6, 1.25)), and `tags`.
+fn box_world(tags: Vec<TagParams>) -> World {
     let mut p = WorldParams::default();
     p.rows.count = 2;
     p.rows.length_m = 12.0;
@@ -466,7 +467,13 @@ fn occluder_boxes_and_tag_boards_stand_where_the_scenario_puts_them() {
             yaw_deg: 0.0,
         },
     }];
-    p.tags = vec![TagParams {
+    p.tags = tags;
+    World::generate(2, &p).expect("valid world")
+}
+
+#[test]
+fn occluder_boxes_and_tag_boards_stand_where_the_scenario_puts_them() {
+    let world = box_world(vec![TagParams {
         id: 3,
         size_m: 0.2,
         height_m: 0.7,
@@ -476,8 +483,7 @@ fn occluder_boxes_and_tag_boards_stand_where_the_scenario_puts_them() {
             offset_m: 1.0,
             yaw_deg: 90.0,
         },
-    }];
-    let world = World::generate(2, &p).expect("valid world");
+    }]);
     let s = scene::build(
         &world,
         &scene::GeometryOptions {
@@ -775,22 +781,7 @@ fn a_plain_surface_gets_depth_with_the_closed_form_probability_of_the_projector(
 /// textured vines and soil around it keep theirs; indoors the box has depth.
 #[test]
 fn a_plain_carton_in_sunlight_has_holes_where_the_vines_keep_depth() {
-    let mut p = WorldParams::default();
-    p.rows.count = 2;
-    p.rows.length_m = 12.0;
-    p.rows.yaw_deg = 0.0;
-    p.terrain.margin_m = 5.0;
-    p.headlands.width_m = 3.0;
-    p.occluders = vec![crate::params::OccluderParams {
-        size_m: [0.6, 0.4, 0.5],
-        at: RowPlacement {
-            row: 0,
-            s_m: 6.0,
-            offset_m: 1.25,
-            yaw_deg: 0.0,
-        },
-    }];
-    let world = World::generate(2, &p).expect("valid world");
+    let world = box_world(Vec::new());
     let r = world_renderer(&world);
     let spec = CameraSpec::d435_depth(super::camera::D435DepthMode::W848H480, 15.0);
     let intr = spec.intrinsics;

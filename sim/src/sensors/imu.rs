@@ -234,7 +234,7 @@ impl Imu {
                 rng,
             )),
             ImuBiasModel::Flicker => {
-                Bias::Flicker(Flicker3::stationary(instability, band_lo, band_hi, dt, rng))
+                Bias::Flicker(Flicker3::from_turn_on(instability, band_lo, band_hi, dt))
             }
         };
         let gyro_bias = bias(gyro_instab * DEG_PER_HOUR_RADPS, &mut rng);

@@ -185,6 +185,25 @@ impl Flicker3 {
         Flicker3 { parts, value }
     }
 
+    /// A flicker process as [`Flicker3::stationary`], but the wander since turn-on:
+    /// every process starts at zero (no draws). A sensor's bias at turn-on is its
+    /// calibrated value plus a turn-on residual, which is a separate setting; started in
+    /// its steady state, the sum of the processes would add a turn-on bias of its own,
+    /// several times the floor (its σ grows with the band's width), that no datasheet
+    /// figure stands for. The Allan deviation of a run longer than the slowest
+    /// correlation time is the stationary one.
+    pub fn from_turn_on(floor: f64, tau_lo: f64, tau_hi: f64, dt_s: f64) -> Flicker3 {
+        let sigma = Flicker3::part_variance(floor, tau_lo, tau_hi).sqrt();
+        let parts: Vec<GaussMarkov3> = Flicker3::taus(tau_lo, tau_hi)
+            .into_iter()
+            .map(|tau| GaussMarkov3::new(Vector3::repeat(sigma), tau, dt_s))
+            .collect();
+        Flicker3 {
+            parts,
+            value: Vector3::zeros(),
+        }
+    }
+
     /// The current value.
     pub fn value(&self) -> &Vector3<f64> {
         &self.value
