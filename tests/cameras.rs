@@ -172,16 +172,25 @@ fn the_rover_rig_streams_stereo_pairs_and_a_tag_camera() {
     assert!((tx + 0.12).abs() < 1e-6, "Tx/fx = {tx}");
 }
 
-#[test]
-fn an_exposure_blurs_colour_images_and_is_checked_against_the_frame_period() {
+/// `scenarios/camera-row.toml` with its centre camera only (the text before the left
+/// camera's table).
+fn camera_row_centre_only() -> String {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/camera-row.toml");
     let base = std::fs::read_to_string(&path).unwrap();
-    // Only the centre camera, and the robot drives off after half a second, to keep the
-    // test short.
     let cut = base
         .find("[[sensors.cameras]]\nname = \"camera_left\"")
         .unwrap();
-    let one = format!("{}\n[motion]\nstill_before_s = 0.5\n", &base[..cut]);
+    base[..cut].to_string()
+}
+
+#[test]
+fn an_exposure_blurs_colour_images_and_is_checked_against_the_frame_period() {
+    // Only the centre camera, and the robot drives off after half a second, to keep the
+    // test short.
+    let one = format!(
+        "{}\n[motion]\nstill_before_s = 0.5\n",
+        camera_row_centre_only()
+    );
     let with = |ms: f64| {
         let toml = one.replace(
             "name = \"camera_center\"",
@@ -229,15 +238,11 @@ fn an_exposure_blurs_colour_images_and_is_checked_against_the_frame_period() {
 #[test]
 fn auto_exposure_holds_the_target_level_where_a_fixed_exposure_follows_the_scene() {
     use vinebench_sim::render::camera::srgb_u8_to_linear;
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/camera-row.toml");
-    let base = std::fs::read_to_string(&path).unwrap();
-    let cut = base
-        .find("[[sensors.cameras]]\nname = \"camera_left\"")
-        .unwrap();
+    let base = camera_row_centre_only();
     let mean_levels = |auto: bool| {
         let toml = format!(
             "{}\n[sensors.camera_exposure]\nauto = {auto}\n",
-            base[..cut].replace("[render]\n", "[render]\nexposure = 4.0\n")
+            base.replace("[render]\n", "[render]\nexposure = 4.0\n")
         );
         let sc = LoadedScenario::from_str(&toml, "camera-row-ae").unwrap();
         sensor_messages(&sc, 1.5)
