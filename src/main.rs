@@ -214,13 +214,14 @@ enum Command {
         #[arg(long)]
         quick: bool,
         /// Which figures: `all`, `core` (estimator, physics, no-camera scenario),
-        /// `render` (ray casting, shading, camera scenarios), `recording` (MCAP write and
+        /// `render` (ray casting, shading, camera scenarios), `tracer` (ray casting only,
+        /// built-in against Embree when built with `--features embree`), `recording` (MCAP write and
         /// read speed, a run's slowdown by its recording), `mapper` (voxel downsampling,
         /// Ball-Pivoting, memory of mapping a row loop) or `slam` (the whole visual SLAM
         /// on a rendered stream of the box-occluder scenario, rig frames per second) or
         /// `sweep` (sweep throughput with 1 and 2 jobs at once, overhead per job, merge of
         /// 10,000 rows).
-        #[arg(long, default_value = "all", value_parser = ["all", "core", "render", "recording", "mapper", "slam", "sweep"])]
+        #[arg(long, default_value = "all", value_parser = ["all", "core", "render", "tracer", "recording", "mapper", "slam", "sweep"])]
         only: String,
     },
 }
@@ -571,8 +572,8 @@ fn dispatch(cmd: Command) -> Result<u8> {
             if only == "all" || only == "core" {
                 figures.extend(vinebench::bench::run_all(quick)?);
             }
-            if only == "all" || only == "render" {
-                figures.extend(vinebench::bench::render_figures(quick)?);
+            if only == "all" || only == "render" || only == "tracer" {
+                figures.extend(vinebench::bench::render_figures(quick, only == "tracer")?);
             }
             if only == "all" || only == "recording" {
                 figures.extend(vinebench::bench::recording::recording_figures(quick)?);

@@ -81,6 +81,15 @@ const ERR_W: f32 = 1.0 / (1u32 << 21) as f32;
 /// Packets whose rays span more than this in the projected plane (ratio units) are cast
 /// as single rays.
 const MAX_PACKET_SPAN: f32 = 1.0;
+/// Bottom-level inner nodes reached by at most this many groups of a packet are traversed
+/// ray by ray ([`TwoLevelBvh::narrow_rays`]).
+/// Bottom-level inner nodes reached by at most this many groups of four rays of a packet
+/// are traversed ray by ray ([`TwoLevelBvh::narrow_rays`]). `vinebench bench --only
+/// tracer` chose it (docs/PERFORMANCE.md, issue #35): on the 10-row × 120 m vineyard
+/// 0 (packets all the way down) gave 5.5–6.8 Mrays/s, 6 gave 6.8–8.8 and 8 to 12 about
+/// the same, 16 (single rays below the instance's root) 4.8; the 4-row world moves
+/// within its noise up to 8.
+const NARROW_AT: u32 = 6;
 /// Groups of four rays in a packet.
 const GROUPS: usize = PACKET_SIZE / 4;
 /// Vectors of four groups.
@@ -1115,10 +1124,13 @@ impl RayPre {
     }
 }
 
-/// Front-to-back traversal of one ray with `stack` (at least [`STACK`] entries);
-/// `leaf(payload, best, rest)` tests a leaf, `rest` being the unused part of the stack.
+/// Front-to-back traversal of one ray from node code `root` (`0`: the whole tree; an
+/// inner node index or `LEAF | payload`: that subtree) with `stack` (at least [`STACK`]
+/// entries); `leaf(payload, best, rest)` tests a leaf, `rest` being the unused part of
+/// the stack.
 fn ray_traverse<F: FnMut(u32, &mut RayBest, &mut [(u32, f32)])>(
     nodes: &[Node4],
+    root: u32,
     r: &RayPre,
     t_min: f32,
     best: &mut RayBest,
@@ -1129,7 +1141,7 @@ fn ray_traverse<F: FnMut(u32, &mut RayBest, &mut [(u32, f32)])>(
         return;
     }
     let mut sp = 1;
-    stack[0] = (0, f32::NEG_INFINITY);
+    stack[0] = (root, f32::NEG_INFINITY);
     let tmin4 = f32x4::splat(t_min);
     while sp > 0 {
         sp -= 1;
@@ -1359,6 +1371,7 @@ impl TwoLevelBvh {
         with_stack(&RAY_STACK, (0, 0.0), |stack| {
             ray_traverse(
                 &self.tlas,
+                0,
                 &pre,
                 t_min,
                 &mut best,
@@ -1404,7 +1417,7 @@ impl TwoLevelBvh {
         let mesh = &self.meshes[mesh as usize];
         let pre = RayPre::new(om, dm, ETA_BLAS);
         let dinf = norm_inf(dm);
-        ray_traverse(&mesh.nodes, &pre, t_min, best, stack, |leaf, best, _| {
+        ray_traverse(&mesh.nodes, 0, &pre, t_min, best, stack, |leaf, best, _| {
             for blk in leaf_blocks(&mesh.tris, leaf) {
                 ray_tri4(blk, om, dm, dinf, t_min, inst, best);
             }
@@ -1880,15 +1893,23 @@ type PacketEntry = (u32, u32, f32);
 
 /// Front-to-back packet traversal of `nodes` for the groups in `mask` with `stack` (at
 /// least [`STACK`] entries); `leaf(state, payload, groups, rest)` handles a leaf, `rest`
-/// being the unused part of the stack.
-fn packet_traverse<F: FnMut(&mut PacketState, u32, u32, &mut [PacketEntry])>(
+/// being the unused part of the stack. An inner node reached by at most `narrow_at`
+/// groups goes to `narrow(state, node, groups)` instead (the packet has diverged: its
+/// remaining rays are cheaper one by one, as in Embree's hybrid traversal); `narrow_at`
+/// 0 never does.
+fn packet_traverse<F, N>(
     nodes: &[Node4],
     f: &Frame,
     mask: u32,
     st: &mut PacketState,
     stack: &mut [PacketEntry],
+    narrow_at: u32,
     mut leaf: F,
-) {
+    mut narrow: N,
+) where
+    F: FnMut(&mut PacketState, u32, u32, &mut [PacketEntry]),
+    N: FnMut(&mut PacketState, u32, u32),
+{
     if nodes.is_empty() || mask == 0 {
         return;
     }
@@ -1905,6 +1926,10 @@ fn packet_traverse<F: FnMut(&mut PacketState, u32, u32, &mut [PacketEntry])>(
         }
         if code & LEAF != 0 {
             leaf(st, code & !LEAF, m, &mut stack[sp..]);
+            continue;
+        }
+        if m.count_ones() <= narrow_at {
+            narrow(st, code, m);
             continue;
         }
         let n = &nodes[code as usize];
@@ -2016,9 +2041,11 @@ impl TwoLevelBvh {
                 mask,
                 &mut st,
                 stack,
+                0,
                 |st, inst, m, rest| {
                     self.packet_instance(inst, &frame, m, st, rest);
                 },
+                |_, _, _| {},
             );
         });
         for (g, out) in hits[..len].chunks_mut(4).enumerate() {
@@ -2062,20 +2089,35 @@ impl TwoLevelBvh {
                 self.packet_leaf(blk, inst, f, gm, st);
             }
         };
+        let narrow = |st: &mut PacketState, node: u32, gm: u32, f: &Frame| {
+            self.narrow_rays(mesh, inst, node, f, gm, st);
+        };
         match id.kind {
-            XformKind::Identity => {
-                packet_traverse(&mesh.nodes, sf, m, st, stack, |st, b, gm, r| {
-                    leaf(st, b, gm, r, sf)
-                })
-            }
+            XformKind::Identity => packet_traverse(
+                &mesh.nodes,
+                sf,
+                m,
+                st,
+                stack,
+                NARROW_AT,
+                |st, b, gm, r| leaf(st, b, gm, r, sf),
+                |st, n, gm| narrow(st, n, gm, sf),
+            ),
             XformKind::Translation => {
                 let mf = Frame {
                     o: id.origin(sf.o),
                     ..sf.clone()
                 };
-                packet_traverse(&mesh.nodes, &mf, m, st, stack, |st, b, gm, r| {
-                    leaf(st, b, gm, r, &mf)
-                });
+                packet_traverse(
+                    &mesh.nodes,
+                    &mf,
+                    m,
+                    st,
+                    stack,
+                    NARROW_AT,
+                    |st, b, gm, r| leaf(st, b, gm, r, &mf),
+                    |st, n, gm| narrow(st, n, gm, &mf),
+                );
             }
             XformKind::General => {
                 let r = &id.inv.rows;
@@ -2092,9 +2134,16 @@ impl TwoLevelBvh {
                 }
                 let om = id.origin(sf.o);
                 match Frame::new(om, &d, m, ETA_BLAS) {
-                    Some(mf) => packet_traverse(&mesh.nodes, &mf, m, st, stack, |st, b, gm, r| {
-                        leaf(st, b, gm, r, &mf)
-                    }),
+                    Some(mf) => packet_traverse(
+                        &mesh.nodes,
+                        &mf,
+                        m,
+                        st,
+                        stack,
+                        NARROW_AT,
+                        |st, b, gm, r| leaf(st, b, gm, r, &mf),
+                        |st, n, gm| narrow(st, n, gm, &mf),
+                    ),
                     None => {
                         // Incoherent in this frame: single rays.
                         for g in 0..GROUPS {
@@ -2120,6 +2169,53 @@ impl TwoLevelBvh {
                 }
             }
         }
+    }
+
+    /// The rays of groups `m` of mesh frame `f` one by one through the subtree `node` of
+    /// `mesh` (instance `inst`): the same triangle arithmetic as the packet path, so the
+    /// same bits.
+    fn narrow_rays(
+        &self,
+        mesh: &MeshBvh,
+        inst: u32,
+        node: u32,
+        f: &Frame,
+        m: u32,
+        st: &mut PacketState,
+    ) {
+        with_stack(&RAY_STACK, (0, 0.0), |stack| {
+            let mut rest = m;
+            while rest != 0 {
+                let g = rest.trailing_zeros() as usize;
+                rest &= rest - 1;
+                for l in 0..4 {
+                    let dm = [
+                        f.d[0][g].as_array_ref()[l],
+                        f.d[1][g].as_array_ref()[l],
+                        f.d[2][g].as_array_ref()[l],
+                    ];
+                    let mut best = st.lane(g, l);
+                    let pre = RayPre::new(f.o, dm, ETA_BLAS);
+                    let dinf = norm_inf(dm);
+                    let t_min = st.t_min;
+                    ray_traverse(
+                        &mesh.nodes,
+                        node,
+                        &pre,
+                        t_min,
+                        &mut best,
+                        stack,
+                        |leaf, best, _| {
+                            for blk in leaf_blocks(&mesh.tris, leaf) {
+                                ray_tri4(blk, f.o, dm, dinf, t_min, inst, best);
+                            }
+                        },
+                    );
+                    st.set_lane(g, l, &best);
+                }
+                st.refresh(g);
+            }
+        });
     }
 
     /// The packet (groups `m` of mesh frame `f`) against one leaf block.
