@@ -565,19 +565,21 @@ fn cast_pair(
     target_pct: f64,
 ) -> Result<(), BenchError> {
     #[cfg(feature = "embree")]
-    let embree = bench_renderer_sized(
+    let embree = Some(bench_renderer_sized(
         world.0,
         world.1,
         vinebench_sim::params::RenderBackend::Embree,
-    )?;
+    )?);
     #[cfg(not(feature = "embree"))]
-    let _ = (world, target_pct);
+    let embree: Option<vinebench_sim::render::shade::Renderer> = {
+        let _ = world;
+        None
+    };
     let (mut best_bvh, mut best_embree) = (0.0f64, 0.0f64);
     for _ in 0..rounds.max(1) {
         best_bvh = best_bvh.max(cast_mrays(bvh, views, 1));
-        #[cfg(feature = "embree")]
-        {
-            best_embree = best_embree.max(cast_mrays(&embree, views, 1));
+        if let Some(e) = &embree {
+            best_embree = best_embree.max(cast_mrays(e, views, 1));
         }
     }
     out.push(Figure {

@@ -302,6 +302,54 @@ fn median(v: &mut [f64]) -> f64 {
     *x
 }
 
+/// The cells of a grid of side a little over `radius` that hold map points. A point
+/// within `radius` of a map point has that map point in its own or a neighbouring cell
+/// (per axis the two differ by at most `radius` < the side), so a point whose 3 × 3 × 3
+/// block of cells is empty is farther than `radius` from the map: most truth samples are
+/// (leaves inside the canopy, the far sides of posts) and skip the nearest-neighbour
+/// query, which gives the same distances for the others.
+struct OccupiedCells {
+    inv_side: f64,
+    cells: rustc_hash::FxHashSet<[i64; 3]>,
+}
+
+impl OccupiedCells {
+    fn new(points: &[[f64; 3]], radius: f64) -> OccupiedCells {
+        // 0.1 % over the radius covers the rounding of the divisions and floors.
+        let inv_side = 1.0 / (radius.max(1e-9) * 1.001);
+        let mut cells = rustc_hash::FxHashSet::default();
+        for q in points {
+            cells.insert(Self::cell(q, inv_side));
+        }
+        OccupiedCells { inv_side, cells }
+    }
+
+    fn cell(q: &[f64; 3], inv_side: f64) -> [i64; 3] {
+        // `as` saturates (and maps NaN to 0): far or non-finite points land in edge cells,
+        // and the exact test decides them.
+        q.map(|x| (x * inv_side).floor() as i64)
+    }
+
+    /// Whether a map point may lie within the radius of `t` (false: it does not).
+    fn near(&self, t: &[f64; 3]) -> bool {
+        if !t.iter().all(|x| x.is_finite()) {
+            return true;
+        }
+        let c = Self::cell(t, self.inv_side);
+        (-1..=1).any(|dx| {
+            (-1..=1).any(|dy| {
+                (-1..=1).any(|dz| {
+                    self.cells.contains(&[
+                        c[0].saturating_add(dx),
+                        c[1].saturating_add(dy),
+                        c[2].saturating_add(dz),
+                    ])
+                })
+            })
+        })
+    }
+}
+
 /// Scores `map` (world-frame points) against `truth`, with F-scores at `thresholds_m`.
 pub fn score_points(
     map: &[[f64; 3]],
@@ -361,10 +409,14 @@ pub fn score_points(
     drop(truth_tree);
     let map_tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(map);
     let region2 = p.region_m * p.region_m;
+    let occupied = OccupiedCells::new(map, p.region_m);
     let mut completeness: Vec<f64> = truth
         .points
         .par_iter()
         .filter_map(|t| {
+            if !occupied.near(t) {
+                return None;
+            }
             let d2 = map_tree.nearest_one::<SquaredEuclidean>(t).distance;
             (d2 <= region2).then(|| d2.sqrt())
         })
@@ -444,6 +496,50 @@ pub fn score_map_in_world(
 mod tests {
     use super::*;
     use vinebench_sim::render::{Affine3, Instance, MeshGeometry};
+
+    /// The cell pre-filter never drops a point within the radius of the map (brute force
+    /// over random clouds, with points placed at exactly the radius along each axis and
+    /// diagonal), and drops most points far from it.
+    #[test]
+    fn occupied_cells_never_drop_a_point_within_the_radius() {
+        let dist2 = |a: &[f64; 3], b: &[f64; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>();
+        let mut rng = SplitMix(7);
+        let mut u = || rng.next_f64();
+        let r = 0.1;
+        let map: Vec<[f64; 3]> = (0..300)
+            .map(|_| [u() * 2.0 - 1.0, u() * 2.0 - 1.0, u() * 0.2])
+            .collect();
+        let cells = OccupiedCells::new(&map, r);
+        let mut probes: Vec<[f64; 3]> = (0..20_000)
+            .map(|_| [u() * 3.0 - 1.5, u() * 3.0 - 1.5, u() * 1.0 - 0.4])
+            .collect();
+        for q in &map {
+            for (k, s) in [(0, 1.0), (1, -1.0), (2, 1.0), (0, -1.0)] {
+                let mut p = *q;
+                p[k] += s * r;
+                probes.push(p);
+            }
+            let d = r / 3f64.sqrt();
+            probes.push([q[0] + d, q[1] - d, q[2] + d]);
+        }
+        let (mut dropped, mut far) = (0, 0);
+        for p in &probes {
+            let within = map.iter().any(|q| dist2(p, q) <= r * r);
+            if within {
+                assert!(
+                    cells.near(p),
+                    "{p:?} is within {r} of the map but was dropped"
+                );
+            } else {
+                far += 1;
+                dropped += usize::from(!cells.near(p));
+            }
+        }
+        assert!(
+            dropped * 2 > far,
+            "only {dropped} of {far} far points dropped"
+        );
+    }
 
     fn square(z: f32) -> TraceScene {
         TraceScene {

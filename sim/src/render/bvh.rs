@@ -31,7 +31,10 @@
 //!   remaining (triangle, group) pair, four rays per SIMD operation. Instances transform
 //!   the packet into the mesh frame (direction lanes by the inverse linear part, not
 //!   renormalised). Packets whose rays do not share a dominant half-space, or spread too
-//!   far, fall back to single rays.
+//!   far, fall back to single rays. Inside an instance, a node that at most
+//!   [`NARROW_AT`] groups still reach is finished ray by ray (Embree's hybrid traversal:
+//!   in the canopy a packet's rays end on different leaves, and the packet would walk the
+//!   union of their paths).
 //! - **Single rays.** Classic 4-wide traversal: SIMD slab test of the four children,
 //!   front-to-back order, four triangles per SIMD test at leaves.
 //! - **Memory.** Nodes, triangle blocks (the vertices are copied) and 56 bytes per
