@@ -1900,6 +1900,7 @@ type PacketEntry = (u32, u32, f32);
 /// groups goes to `narrow(state, node, groups)` instead (the packet has diverged: its
 /// remaining rays are cheaper one by one, as in Embree's hybrid traversal); `narrow_at`
 /// 0 never does.
+#[allow(clippy::too_many_arguments)]
 fn packet_traverse<F, N>(
     nodes: &[Node4],
     f: &Frame,
