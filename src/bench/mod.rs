@@ -679,10 +679,13 @@ pub fn render_figures(quick: bool, tracer_only: bool) -> Result<Vec<Figure>, Ben
         name: "render: shaded 640x480 frames (cast + textures + shadows), all threads",
         value: shaded_frames_per_second(&bvh, repeats),
         unit: "frames/s",
-        target: Some(90.0),
+        target: None,
     });
     out.extend(slam_feature_figures(&bvh, repeats)?);
     drop(bvh);
+    // Issue #4's absolute real-time targets (2× and 1×) are retired: on 2 cores even
+    // Embree's casting alone stays below them (docs/PERFORMANCE.md); issue #35 measures
+    // the runs against their casting-only bound instead.
     out.push(Figure {
         name: "camera-row: tracked rig, 3 RGB-D 640x480 at 15 Hz + IMU/GNSS/physics, real-time factor",
         value: camera_scenario_real_time_factor(
@@ -692,7 +695,7 @@ pub fn render_figures(quick: bool, tracer_only: bool) -> Result<Vec<Figure>, Ben
             1,
         )?,
         unit: "x",
-        target: Some(2.0),
+        target: None,
     });
     out.push(Figure {
         name: "rover-occluder: 2 stereo pairs 752x480 at 15 Hz + 1920x1080 tag camera at 5 Hz, real-time factor",
@@ -703,7 +706,7 @@ pub fn render_figures(quick: bool, tracer_only: bool) -> Result<Vec<Figure>, Ben
             1,
         )?,
         unit: "x",
-        target: Some(1.0),
+        target: None,
     });
     Ok(out)
 }

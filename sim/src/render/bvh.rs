@@ -84,14 +84,12 @@ const ERR_W: f32 = 1.0 / (1u32 << 21) as f32;
 /// Packets whose rays span more than this in the projected plane (ratio units) are cast
 /// as single rays.
 const MAX_PACKET_SPAN: f32 = 1.0;
-/// Bottom-level inner nodes reached by at most this many groups of a packet are traversed
-/// ray by ray ([`TwoLevelBvh::narrow_rays`]).
 /// Bottom-level inner nodes reached by at most this many groups of four rays of a packet
 /// are traversed ray by ray ([`TwoLevelBvh::narrow_rays`]). `vinebench bench --only
 /// tracer` chose it (docs/PERFORMANCE.md, issue #35): on the 10-row × 120 m vineyard
 /// 0 (packets all the way down) gave 5.5–6.8 Mrays/s, 6 gave 6.8–8.8 and 8 to 12 about
-/// the same, 16 (single rays below the instance's root) 4.8; the 4-row world moves
-/// within its noise up to 8.
+/// the same, 16 (single rays below the instance's root) 4.8; on the 4-row world the
+/// choices up to 12 stay within its noise.
 const NARROW_AT: u32 = 6;
 /// Groups of four rays in a packet.
 const GROUPS: usize = PACKET_SIZE / 4;
