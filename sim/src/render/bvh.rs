@@ -2086,40 +2086,14 @@ impl TwoLevelBvh {
             return;
         };
         let mesh = &self.meshes[id.mesh as usize];
-        let leaf = |st: &mut PacketState, blk: u32, gm: u32, _: &mut [PacketEntry], f: &Frame| {
-            for blk in leaf_blocks(&mesh.tris, blk) {
-                self.packet_leaf(blk, inst, f, gm, st);
-            }
-        };
-        let narrow = |st: &mut PacketState, node: u32, gm: u32, f: &Frame| {
-            self.narrow_rays(mesh, inst, node, f, gm, st);
-        };
         match id.kind {
-            XformKind::Identity => packet_traverse(
-                &mesh.nodes,
-                sf,
-                m,
-                st,
-                stack,
-                NARROW_AT,
-                |st, b, gm, r| leaf(st, b, gm, r, sf),
-                |st, n, gm| narrow(st, n, gm, sf),
-            ),
+            XformKind::Identity => self.packet_mesh(mesh, inst, sf, m, st, stack),
             XformKind::Translation => {
                 let mf = Frame {
                     o: id.origin(sf.o),
                     ..sf.clone()
                 };
-                packet_traverse(
-                    &mesh.nodes,
-                    &mf,
-                    m,
-                    st,
-                    stack,
-                    NARROW_AT,
-                    |st, b, gm, r| leaf(st, b, gm, r, &mf),
-                    |st, n, gm| narrow(st, n, gm, &mf),
-                );
+                self.packet_mesh(mesh, inst, &mf, m, st, stack);
             }
             XformKind::General => {
                 let r = &id.inv.rows;
@@ -2136,16 +2110,7 @@ impl TwoLevelBvh {
                 }
                 let om = id.origin(sf.o);
                 match Frame::new(om, &d, m, ETA_BLAS) {
-                    Some(mf) => packet_traverse(
-                        &mesh.nodes,
-                        &mf,
-                        m,
-                        st,
-                        stack,
-                        NARROW_AT,
-                        |st, b, gm, r| leaf(st, b, gm, r, &mf),
-                        |st, n, gm| narrow(st, n, gm, &mf),
-                    ),
+                    Some(mf) => self.packet_mesh(mesh, inst, &mf, m, st, stack),
                     None => {
                         // Incoherent in this frame: single rays.
                         for g in 0..GROUPS {
@@ -2171,6 +2136,33 @@ impl TwoLevelBvh {
                 }
             }
         }
+    }
+
+    /// The packet (groups `m` of mesh frame `f`) through `mesh` of instance `inst`:
+    /// packet traversal, diverged nodes ray by ray ([`NARROW_AT`]).
+    fn packet_mesh(
+        &self,
+        mesh: &MeshBvh,
+        inst: u32,
+        f: &Frame,
+        m: u32,
+        st: &mut PacketState,
+        stack: &mut [PacketEntry],
+    ) {
+        packet_traverse(
+            &mesh.nodes,
+            f,
+            m,
+            st,
+            stack,
+            NARROW_AT,
+            |st, blk, gm, _| {
+                for blk in leaf_blocks(&mesh.tris, blk) {
+                    self.packet_leaf(blk, inst, f, gm, st);
+                }
+            },
+            |st, node, gm| self.narrow_rays(mesh, inst, node, f, gm, st),
+        );
     }
 
     /// The rays of groups `m` of mesh frame `f` one by one through the subtree `node` of
