@@ -1400,30 +1400,46 @@ impl TwoLevelBvh {
             return;
         };
         let (om, dm) = (id.origin(o), id.dir(d));
-        self.ray_mesh(id.mesh, inst, om, dm, t_min, best, stack);
+        ray_mesh(
+            &self.meshes[id.mesh as usize],
+            0,
+            inst,
+            om,
+            dm,
+            t_min,
+            best,
+            stack,
+        );
     }
+}
 
-    /// One mesh-frame ray against mesh `mesh` of instance `inst`.
-    #[allow(clippy::too_many_arguments)]
-    fn ray_mesh(
-        &self,
-        mesh: u32,
-        inst: u32,
-        om: [f32; 3],
-        dm: [f32; 3],
-        t_min: f32,
-        best: &mut RayBest,
-        stack: &mut [(u32, f32)],
-    ) {
-        let mesh = &self.meshes[mesh as usize];
-        let pre = RayPre::new(om, dm, ETA_BLAS);
-        let dinf = norm_inf(dm);
-        ray_traverse(&mesh.nodes, 0, &pre, t_min, best, stack, |leaf, best, _| {
+/// One mesh-frame ray against the subtree `root` (0: all) of `mesh` of instance `inst`.
+#[allow(clippy::too_many_arguments)]
+fn ray_mesh(
+    mesh: &MeshBvh,
+    root: u32,
+    inst: u32,
+    om: [f32; 3],
+    dm: [f32; 3],
+    t_min: f32,
+    best: &mut RayBest,
+    stack: &mut [(u32, f32)],
+) {
+    let pre = RayPre::new(om, dm, ETA_BLAS);
+    let dinf = norm_inf(dm);
+    ray_traverse(
+        &mesh.nodes,
+        root,
+        &pre,
+        t_min,
+        best,
+        stack,
+        |leaf, best, _| {
             for blk in leaf_blocks(&mesh.tris, leaf) {
                 ray_tri4(blk, om, dm, dinf, t_min, inst, best);
             }
-        });
-    }
+        },
+    );
 }
 
 // ---------------------------------------------------------------------------------------
@@ -2111,28 +2127,8 @@ impl TwoLevelBvh {
                 let om = id.origin(sf.o);
                 match Frame::new(om, &d, m, ETA_BLAS) {
                     Some(mf) => self.packet_mesh(mesh, inst, &mf, m, st, stack),
-                    None => {
-                        // Incoherent in this frame: single rays.
-                        for g in 0..GROUPS {
-                            if m >> g & 1 == 0 {
-                                continue;
-                            }
-                            for l in 0..4 {
-                                let dm = [
-                                    d[0][g].as_array_ref()[l],
-                                    d[1][g].as_array_ref()[l],
-                                    d[2][g].as_array_ref()[l],
-                                ];
-                                let mut best = st.lane(g, l);
-                                let mut stack = [(0u32, 0.0f32); STACK];
-                                self.ray_mesh(
-                                    id.mesh, inst, om, dm, st.t_min, &mut best, &mut stack,
-                                );
-                                st.set_lane(g, l, &best);
-                            }
-                            st.refresh(g);
-                        }
-                    }
+                    // Incoherent in this frame: single rays.
+                    None => self.narrow_rays(mesh, inst, 0, om, &d, m, st),
                 }
             }
         }
@@ -2161,19 +2157,21 @@ impl TwoLevelBvh {
                     self.packet_leaf(blk, inst, f, gm, st);
                 }
             },
-            |st, node, gm| self.narrow_rays(mesh, inst, node, f, gm, st),
+            |st, node, gm| self.narrow_rays(mesh, inst, node, f.o, f.d, gm, st),
         );
     }
 
-    /// The rays of groups `m` of mesh frame `f` one by one through the subtree `node` of
-    /// `mesh` (instance `inst`): the same triangle arithmetic as the packet path, so the
-    /// same bits.
+    /// The rays of groups `m` (origin `o`, directions `d`, mesh frame) one by one through
+    /// the subtree `node` (0: all) of `mesh` of instance `inst`: the same triangle
+    /// arithmetic as the packet path, so the same bits.
+    #[allow(clippy::too_many_arguments)]
     fn narrow_rays(
         &self,
         mesh: &MeshBvh,
         inst: u32,
         node: u32,
-        f: &Frame,
+        o: [f32; 3],
+        d: &[[f32x4; GROUPS]; 3],
         m: u32,
         st: &mut PacketState,
     ) {
@@ -2184,27 +2182,12 @@ impl TwoLevelBvh {
                 rest &= rest - 1;
                 for l in 0..4 {
                     let dm = [
-                        f.d[0][g].as_array_ref()[l],
-                        f.d[1][g].as_array_ref()[l],
-                        f.d[2][g].as_array_ref()[l],
+                        d[0][g].as_array_ref()[l],
+                        d[1][g].as_array_ref()[l],
+                        d[2][g].as_array_ref()[l],
                     ];
                     let mut best = st.lane(g, l);
-                    let pre = RayPre::new(f.o, dm, ETA_BLAS);
-                    let dinf = norm_inf(dm);
-                    let t_min = st.t_min;
-                    ray_traverse(
-                        &mesh.nodes,
-                        node,
-                        &pre,
-                        t_min,
-                        &mut best,
-                        stack,
-                        |leaf, best, _| {
-                            for blk in leaf_blocks(&mesh.tris, leaf) {
-                                ray_tri4(blk, f.o, dm, dinf, t_min, inst, best);
-                            }
-                        },
-                    );
+                    ray_mesh(mesh, node, inst, o, dm, st.t_min, &mut best, stack);
                     st.set_lane(g, l, &best);
                 }
                 st.refresh(g);
