@@ -440,6 +440,12 @@ fn write_db3_seed(path: &Path) {
 /// A ROS 1 bag of `geometry_msgs/PoseStamped` on `/pose` and a `tf2_msgs/TFMessage` on
 /// `/tf`, in one chunk compressed with `compression` (`none` or `bz2`).
 fn bag1_seed(compression: &str) -> Vec<u8> {
+    bag1(compression, 119)
+}
+
+/// [`bag1_seed`] with the stamp of the last of its 20 tf messages (seconds; the others are
+/// 100 to 118).
+fn bag1(compression: &str, last_tf_sec: u32) -> Vec<u8> {
     use std::io::Read;
     fn field(k: &str, v: &[u8]) -> Vec<u8> {
         let mut f = k.as_bytes().to_vec();
@@ -528,9 +534,10 @@ fn bag1_seed(compression: &str) -> Vec<u8> {
             100 + k,
             [header(100 + k, "map"), pose(f64::from(k))].concat(),
         ));
+        let tf_sec = if k == 19 { last_tf_sec } else { 100 + k };
         let tf = [
             1u32.to_le_bytes().to_vec(),
-            header(100 + k, "map"),
+            header(tf_sec, "map"),
             string("base"),
             pose(f64::from(k)),
         ]
@@ -555,6 +562,27 @@ fn bag1_seed(compression: &str) -> Vec<u8> {
         &data,
     );
     [b"#ROSBAG V2.0\n".to_vec(), chunk].concat()
+}
+
+/// The CI fuzz stage's finding of 2026-11-27: one tf stamp weeks after the others made the
+/// `/tf:` lookup grid (a month allowed at 10 Hz) ask for 1.9 GB of poses in one allocation.
+/// Just inside the bound (a week) the trajectory is read within the fuzz allocator's
+/// limits, with a pose for every 0.1 s; a month is refused with the span named.
+#[test]
+fn tf_lookup_grid_is_bounded() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("tf.bag");
+    let week = 7 * 86_400;
+    std::fs::write(&p, bag1("none", 100 + week - 1)).unwrap();
+    let t = vinebench::scoring::evo::bag::read_topic(&p, "/tf:map.base").unwrap();
+    assert_eq!(t.poses.len(), (week as usize - 1) * 10 + 1);
+    std::fs::write(&p, bag1("none", 100 + 30 * 86_400)).unwrap();
+    let e = vinebench::scoring::evo::bag::read_topic(&p, "/tf:map.base").unwrap_err();
+    let msg = e.to_string();
+    assert!(
+        msg.contains("2592000 s") && msg.contains("lookups"),
+        "{msg}"
+    );
 }
 
 fn mesh_seeds() -> Vec<(String, Vec<u8>)> {

@@ -205,8 +205,10 @@ fn at(l: &Link, t: Nanos) -> Result<Isometry3<f64>, TfError> {
     }
 }
 
-/// Most lookup times of one tf trajectory (a month at 10 Hz).
-pub const MAX_SAMPLES: i64 = 26_000_000;
+/// Most lookup times of one tf trajectory: a week at 10 Hz. Each lookup keeps a 4 × 4
+/// pose (128 bytes), so the trajectory stays under 1 GiB in one allocation (a month would
+/// ask for 3.3 GB: a single mutated stamp in a bag reaches that).
+pub const MAX_SAMPLES: i64 = 6_048_000;
 
 /// The sample times evo looks up: every 0.1 s from `start` up to `latest` (inclusive);
 /// only `latest` when it is earlier than `start`. `None` beyond [`MAX_SAMPLES`] (stamps
