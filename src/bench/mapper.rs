@@ -130,6 +130,31 @@ pub fn bpa_seconds(
     (best, triangles)
 }
 
+/// Best wall time of the map normals (k = 10) of `points` searched through the grid
+/// (cells of 2 cm) and through kiddo's k-d tree alone (what the grid replaced), over
+/// `repeats`, alternating; an error if the two ever differ.
+pub fn normals_seconds(points: &[[f64; 3]], repeats: usize) -> Result<(f64, f64), BenchError> {
+    use vinebench_onboard::mapper::normals::estimate_normals;
+    let pts: Vec<[f32; 3]> = points.iter().map(|p| p.map(|c| c as f32)).collect();
+    let vps: Vec<[f32; 3]> = pts.iter().map(|p| [p[0], p[1], p[2] + 1.5]).collect();
+    let (mut grid, mut tree) = (f64::INFINITY, f64::INFINITY);
+    for _ in 0..repeats.max(1) {
+        let t0 = Instant::now();
+        let a = estimate_normals(&pts, &vps, 10, 0.02);
+        grid = grid.min(t0.elapsed().as_secs_f64());
+        let t0 = Instant::now();
+        // A cell edge that is not a length: the k-d tree for every point.
+        let b = estimate_normals(&pts, &vps, 10, f64::NAN);
+        tree = tree.min(t0.elapsed().as_secs_f64());
+        if a != b {
+            return Err(BenchError::Setup(
+                "the grid's normals differ from the k-d tree's".into(),
+            ));
+        }
+    }
+    Ok((grid, tree))
+}
+
 /// A `/proc/self/status` value in kB (`VmRSS`, `VmHWM`), Linux only.
 pub fn proc_status_kb(key: &str) -> Option<u64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
@@ -241,6 +266,9 @@ pub fn mapper_figures(quick: bool) -> Result<Vec<Figure>, BenchError> {
     drop((points, colors));
     let (points, normals) = wavy_surface(200_000);
     let (bpa_s, triangles) = bpa_seconds(&points, &normals, &[0.01, 0.02, 0.04], repeats);
+    let (big, _) = wavy_surface(if quick { 250_000 } else { 1_000_000 });
+    let (normals_grid_s, normals_tree_s) = normals_seconds(&big, repeats)?;
+    drop(big);
     let single = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
@@ -267,6 +295,24 @@ pub fn mapper_figures(quick: bool) -> Result<Vec<Figure>, BenchError> {
             name: "voxel downsampling, occupied voxels (1 M expected)",
             value: voxels as f64,
             unit: "voxels",
+            target: None,
+        },
+        Figure {
+            name: "normals (k = 10) of a 1 cm wavy surface, 1 M points (250 k quick): grid search, s",
+            value: normals_grid_s,
+            unit: "s",
+            target: None,
+        },
+        Figure {
+            name: "same, kiddo k-d tree for every point (the search before #35), s",
+            value: normals_tree_s,
+            unit: "s",
+            target: None,
+        },
+        Figure {
+            name: "normals: grid speed-up over the k-d tree (same normals, bit for bit)",
+            value: normals_tree_s / normals_grid_s,
+            unit: "×",
             target: None,
         },
         Figure {

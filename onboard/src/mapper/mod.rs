@@ -749,7 +749,12 @@ impl Mapper {
         let grvi: Vec<f32> = colors.iter().map(|c| grvi_of(*c)).collect();
         let elevation = elevation(&positions, params.ground_cell_m, params.ground_percentile);
         lap(&mut timing.attributes_s);
-        let normals = normals::estimate_normals(&positions, &viewpoints, params.normal_neighbours);
+        let normals = normals::estimate_normals(
+            &positions,
+            &viewpoints,
+            params.normal_neighbours,
+            2.0 * params.voxel_m,
+        );
         voxel::release_freed_memory();
         lap(&mut timing.normals_s);
         stats.voxels = positions.len() as u64;

@@ -170,6 +170,9 @@ impl VoxelGrid {
         Some(idx)
     }
 
+    /// Indices per axis run over `-AXIS_RANGE..AXIS_RANGE` (2^20).
+    pub const AXIS_RANGE: f64 = AXIS_OFFSET as f64;
+
     /// The packed key of a voxel index: 21 bits per axis, x most significant, so keys
     /// sort as `(i, j, k)` lexicographically.
     #[inline]
