@@ -267,13 +267,9 @@ impl Bpa<'_> {
     /// Whether no point other than `skip` lies strictly inside the ball.
     fn ball_is_empty(&self, grid: &PointGrid, center: &[f64; 3], rho: f64, skip: [u32; 3]) -> bool {
         let r2 = rho * rho * (1.0 - EMPTY_BALL_TOLERANCE);
-        let mut empty = true;
-        grid.for_each_near(center, |q| {
-            if empty && !skip.contains(&q) && dist2(&self.p[q as usize], center) < r2 {
-                empty = false;
-            }
-        });
-        empty
+        !grid.any_near(center, |q| {
+            !skip.contains(&q) && dist2(&self.p[q as usize], center) < r2
+        })
     }
 
     /// Tries to start a new triangle at unused vertex `v`.

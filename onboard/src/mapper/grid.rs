@@ -72,6 +72,28 @@ impl PointGrid {
         }
     }
 
+    /// Whether `pred(index)` holds for any point in the 27 cells around `q` (stops at
+    /// the first that does).
+    #[inline]
+    pub fn any_near(&self, q: &[f64; 3], mut pred: impl FnMut(u32) -> bool) -> bool {
+        let Some(c) = index(q, self.inv_cell) else {
+            return false;
+        };
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let key = VoxelGrid::key_of_index([c[0] + dx, c[1] + dy, c[2] + dz]);
+                    if let Some(&(a, b)) = self.cells.get(&key)
+                        && self.sorted[a as usize..b as usize].iter().any(|&i| pred(i))
+                    {
+                        return true;
+                    }
+                }
+            }
+        }
+        false
+    }
+
     /// Indices of the points within `radius` (≤ `cell_m`) of `q`, appended to `out`.
     pub fn within(&self, points: &[[f64; 3]], q: &[f64; 3], radius: f64, out: &mut Vec<u32>) {
         let r2 = radius * radius;
