@@ -39,6 +39,10 @@ use std::collections::VecDeque;
 const EMPTY_BALL_TOLERANCE: f64 = 1e-9;
 /// Seed search looks at this many nearest unused neighbours of a candidate vertex.
 const SEED_NEIGHBOURS: usize = 12;
+/// How far (relative to ρ) a ball's centre may lie beyond ρ from a point on its sphere
+/// for [`Bpa::ball_is_empty_near`] to answer: far above the rounding of the centre, well
+/// below the 5e-10 of [`EMPTY_BALL_TOLERANCE`].
+const CENTRE_SLACK: f64 = 1e-10;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum EdgeState {
@@ -272,12 +276,51 @@ impl Bpa<'_> {
         })
     }
 
+    /// [`Bpa::ball_is_empty`] for a ball through `pv`, looking only at `near` (every
+    /// point within 2ρ of `pv`). A point strictly inside the ball (radius ρ·(1 − 5e-10),
+    /// [`EMPTY_BALL_TOLERANCE`]) is nearer `pv` than 2ρ when the centre is within
+    /// ρ·(1 + [`CENTRE_SLACK`]) of `pv`, as a ball through `pv` is up to rounding; a
+    /// centre farther than that takes the grid, so the answer is the same either way.
+    fn ball_is_empty_near(
+        &self,
+        near: &[u32],
+        pv: &[f64; 3],
+        grid: &PointGrid,
+        center: &[f64; 3],
+        rho: f64,
+        skip: [u32; 3],
+    ) -> bool {
+        let lim = rho * (1.0 + CENTRE_SLACK);
+        if dist2(center, pv) > lim * lim {
+            return self.ball_is_empty(grid, center, rho, skip);
+        }
+        let r2 = rho * rho * (1.0 - EMPTY_BALL_TOLERANCE);
+        !near
+            .iter()
+            .any(|&q| !skip.contains(&q) && dist2(&self.p[q as usize], center) < r2)
+    }
+
     /// Tries to start a new triangle at unused vertex `v`.
-    fn seed(&mut self, v: u32, grid: &PointGrid, rho: f64, scratch: &mut Vec<u32>) -> bool {
+    ///
+    /// `near` and `scratch` are buffers. A ball through `v` lies within 2ρ of it, so the
+    /// points within 2ρ (gathered once) are all its emptiness tests have to look at.
+    fn seed(
+        &mut self,
+        v: u32,
+        grid: &PointGrid,
+        rho: f64,
+        near: &mut Vec<u32>,
+        scratch: &mut Vec<u32>,
+    ) -> bool {
         let pv = self.p[v as usize];
+        near.clear();
+        grid.within(self.p, &pv, 2.0 * rho, near);
         scratch.clear();
-        grid.within(self.p, &pv, 2.0 * rho, scratch);
-        scratch.retain(|&q| q != v && !self.used[q as usize]);
+        scratch.extend(
+            near.iter()
+                .copied()
+                .filter(|&q| q != v && !self.used[q as usize]),
+        );
         let nearer = |a: &u32, b: &u32| {
             dist2(&self.p[*a as usize], &pv)
                 .total_cmp(&dist2(&self.p[*b as usize], &pv))
@@ -305,7 +348,7 @@ impl Bpa<'_> {
                     continue;
                 };
                 if !self.normals_agree(&nrm, [v, a, b])
-                    || !self.ball_is_empty(grid, &c, rho, [v, a, b])
+                    || !self.ball_is_empty_near(near, &pv, grid, &c, rho, [v, a, b])
                 {
                     continue;
                 }
@@ -377,7 +420,7 @@ pub fn ball_pivoting(
         .par_iter()
         .map(|r| PointGrid::new(&points[..n], 2.0 * r))
         .collect();
-    let mut scratch = Vec::new();
+    let (mut near, mut scratch) = (Vec::new(), Vec::new());
     for (pass, (&rho, grid)) in radii.iter().zip(&grids).enumerate() {
         if pass > 0 {
             bpa.reactivate(grid, rho);
@@ -387,7 +430,7 @@ pub fn ball_pivoting(
             if bpa.used[v as usize] {
                 continue;
             }
-            if bpa.seed(v, grid, rho, &mut scratch) {
+            if bpa.seed(v, grid, rho, &mut near, &mut scratch) {
                 bpa.expand(grid, rho);
             }
         }
