@@ -66,6 +66,7 @@ pub mod voxel;
 use camera::RayTable;
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
+use rustc_hash::FxHashMap;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -798,39 +799,48 @@ pub fn grvi_of(c: [u8; 3]) -> f32 {
 
 /// Height of each point (`f64` or `f32`) above the local ground (see the
 /// [module docs](self)).
-pub fn elevation<T: Copy + Into<f64>>(points: &[[T; 3]], cell_m: f64, percentile: f64) -> Vec<f32> {
+pub fn elevation<T: Copy + Into<f64> + Sync>(
+    points: &[[T; 3]],
+    cell_m: f64,
+    percentile: f64,
+) -> Vec<f32> {
     let cell = |p: &[T; 3]| {
         (
             (p[0].into() / cell_m).floor() as i64,
             (p[1].into() / cell_m).floor() as i64,
         )
     };
-    let mut zs: BTreeMap<(i64, i64), Vec<f64>> = BTreeMap::new();
+    // Each cell's heights in a hash map (the order within a cell does not matter: they
+    // are sorted by a total order), and each cell's ground computed once.
+    let mut zs: FxHashMap<(i64, i64), Vec<f64>> = FxHashMap::default();
     for p in points {
         zs.entry(cell(p)).or_default().push(p[2].into());
     }
-    let quantile: BTreeMap<(i64, i64), f64> = zs
-        .into_iter()
+    let quantile: FxHashMap<(i64, i64), f64> = zs
+        .into_par_iter()
         .map(|(k, mut v)| {
             v.sort_by(f64::total_cmp);
             let i = ((v.len() - 1) as f64 * percentile).round() as usize;
             (k, v[i.min(v.len() - 1)])
         })
         .collect();
-    let ground = |c: (i64, i64)| -> f64 {
-        let mut g = f64::INFINITY;
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                if let Some(z) = quantile.get(&(c.0 + dx, c.1 + dy)) {
-                    g = g.min(*z);
+    let ground: FxHashMap<(i64, i64), f64> = quantile
+        .keys()
+        .map(|&c| {
+            let mut g = f64::INFINITY;
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    if let Some(z) = quantile.get(&(c.0 + dx, c.1 + dy)) {
+                        g = g.min(*z);
+                    }
                 }
             }
-        }
-        g
-    };
+            (c, g)
+        })
+        .collect();
     points
-        .iter()
-        .map(|p| (p[2].into() - ground(cell(p))) as f32)
+        .par_iter()
+        .map(|p| (p[2].into() - ground.get(&cell(p)).copied().unwrap_or(f64::INFINITY)) as f32)
         .collect()
 }
 
