@@ -1,7 +1,7 @@
 //! Point normals by principal component analysis of the k nearest neighbours, oriented
 //! towards the sensor that saw each point.
 //!
-//! The neighbour search is a uniform grid over the map's voxel centroids ([`KnnGrid`]):
+//! The neighbour search is a uniform grid over the map's voxel centroids (`KnnGrid`):
 //! a column of cells is walked bottom to top, the points of each cell's block of 27 are
 //! gathered once, and every point of the cell picks its nearest from them with a proof
 //! that nothing outside the block is nearer (else the search widens ring by ring, and past
