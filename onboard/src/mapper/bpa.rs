@@ -268,12 +268,17 @@ impl Bpa<'_> {
         }
     }
 
+    /// Whether point `q`, not one of `skip`, lies strictly inside the ball (radius `rho`
+    /// less [`EMPTY_BALL_TOLERANCE`]).
+    #[inline]
+    fn inside(&self, q: u32, center: &[f64; 3], rho: f64, skip: [u32; 3]) -> bool {
+        !skip.contains(&q)
+            && dist2(&self.p[q as usize], center) < rho * rho * (1.0 - EMPTY_BALL_TOLERANCE)
+    }
+
     /// Whether no point other than `skip` lies strictly inside the ball.
     fn ball_is_empty(&self, grid: &PointGrid, center: &[f64; 3], rho: f64, skip: [u32; 3]) -> bool {
-        let r2 = rho * rho * (1.0 - EMPTY_BALL_TOLERANCE);
-        !grid.any_near(center, |q| {
-            !skip.contains(&q) && dist2(&self.p[q as usize], center) < r2
-        })
+        !grid.any_near(center, |q| self.inside(q, center, rho, skip))
     }
 
     /// [`Bpa::ball_is_empty`] for a ball through `pv`, looking only at `near` (every
@@ -294,10 +299,7 @@ impl Bpa<'_> {
         if dist2(center, pv) > lim * lim {
             return self.ball_is_empty(grid, center, rho, skip);
         }
-        let r2 = rho * rho * (1.0 - EMPTY_BALL_TOLERANCE);
-        !near
-            .iter()
-            .any(|&q| !skip.contains(&q) && dist2(&self.p[q as usize], center) < r2)
+        !near.iter().any(|&q| self.inside(q, center, rho, skip))
     }
 
     /// Tries to start a new triangle at unused vertex `v`.

@@ -55,21 +55,10 @@ impl PointGrid {
     /// points within `cell_m` of `q`).
     #[inline]
     pub fn for_each_near(&self, q: &[f64; 3], mut f: impl FnMut(u32)) {
-        let Some(c) = index(q, self.inv_cell) else {
-            return;
-        };
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let key = VoxelGrid::key_of_index([c[0] + dx, c[1] + dy, c[2] + dz]);
-                    if let Some(&(a, b)) = self.cells.get(&key) {
-                        for &i in &self.sorted[a as usize..b as usize] {
-                            f(i);
-                        }
-                    }
-                }
-            }
-        }
+        self.any_near(q, |i| {
+            f(i);
+            false
+        });
     }
 
     /// Whether `pred(index)` holds for any point in the 27 cells around `q` (stops at

@@ -11,7 +11,7 @@
 //! asked. On `map-row`'s 6.8 M-point map that is 3 of them, and the search a third of
 //! kiddo's time (docs/PERFORMANCE.md).
 
-use super::voxel::VoxelGrid;
+use super::voxel::{AXIS_BITS, VoxelGrid};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
@@ -163,8 +163,8 @@ struct Scratch {
     nn: Vec<(f32, u32)>,
 }
 
-/// The z bits of a cell key.
-const Z_MASK: u64 = (1 << 21) - 1;
+/// The z bits of a cell key (the rest is its column).
+const Z_MASK: u64 = (1 << AXIS_BITS) - 1;
 
 /// Points bucketed by cells of a uniform grid, for exact k-nearest-neighbour queries.
 /// Cell keys sort by (x, y, z), so a column of cells (one x, y) is a range of `runs`, and
@@ -209,8 +209,8 @@ impl<'a> KnnGrid<'a> {
             match runs.last_mut() {
                 Some(r) if r.0 == key => r.2 += 1,
                 _ => {
-                    let col = key >> 21;
-                    if runs.last().is_none_or(|r| r.0 >> 21 != col) {
+                    let col = key >> AXIS_BITS;
+                    if runs.last().is_none_or(|r| r.0 >> AXIS_BITS != col) {
                         column_of.insert(col, columns.len() as u32);
                         columns.push((runs.len() as u32, runs.len() as u32));
                     }
@@ -259,7 +259,7 @@ impl<'a> KnnGrid<'a> {
             .iter_mut()
             .zip((-1..=1).flat_map(|dx| (-1..=1).map(move |dy| (dx, dy))))
         {
-            let key = VoxelGrid::key_of_index([c[0] + dx, c[1] + dy, 0]) >> 21;
+            let key = VoxelGrid::key_of_index([c[0] + dx, c[1] + dy, 0]) >> AXIS_BITS;
             if let Some(&j) = self.column_of.get(&key) {
                 *slot = self.columns[j as usize];
             }
@@ -277,18 +277,24 @@ impl<'a> KnnGrid<'a> {
                     last += 1;
                 }
                 if last > *next {
-                    let from = self.runs[*next as usize].1 as usize;
-                    let to = self.runs[last as usize - 1].2 as usize;
-                    s.cand.extend(
-                        self.spts[from..to]
-                            .iter()
-                            .copied()
-                            .zip(self.sorted[from..to].iter().copied()),
-                    );
+                    let from = self.runs[*next as usize].1;
+                    self.gather(from, self.runs[last as usize - 1].2, s);
                 }
             }
             f(s, key, a as usize..b as usize);
         }
+    }
+
+    /// Appends the points `from..to` of the sorted order to `s.cand`.
+    #[inline]
+    fn gather(&self, from: u32, to: u32, s: &mut Scratch) {
+        let r = from as usize..to as usize;
+        s.cand.extend(
+            self.spts[r.clone()]
+                .iter()
+                .copied()
+                .zip(self.sorted[r].iter().copied()),
+        );
     }
 
     /// Appends the points of the cells at Chebyshev distance exactly `ring` (≥ 2) from
@@ -302,13 +308,7 @@ impl<'a> KnnGrid<'a> {
                 while dz <= ring {
                     let key = VoxelGrid::key_of_index([c[0] + dx, c[1] + dy, c[2] + dz]);
                     if let Some(&(a, b)) = self.cells.get(&key) {
-                        let (a, b) = (a as usize, b as usize);
-                        s.cand.extend(
-                            self.spts[a..b]
-                                .iter()
-                                .copied()
-                                .zip(self.sorted[a..b].iter().copied()),
-                        );
+                        self.gather(a, b, s);
                     }
                     // Inside the shell only its two z faces are new.
                     dz += if inner && dz == -ring { 2 * ring } else { 1 };

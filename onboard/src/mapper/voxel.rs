@@ -22,7 +22,7 @@ use rustc_hash::FxHashMap;
 /// Number of hash-map shards (a power of two).
 pub const SHARDS: usize = 64;
 /// Bits per axis in a packed voxel key.
-const AXIS_BITS: u32 = 21;
+pub const AXIS_BITS: u32 = 21;
 /// Offset that makes axis indices non-negative.
 const AXIS_OFFSET: i64 = 1 << (AXIS_BITS - 1);
 /// Batches smaller than this are inserted on the calling thread.
