@@ -35,7 +35,8 @@
 //!    smallest such value of its 3 × 3 neighbourhood (so cells seen only through canopy
 //!    take the ground of their neighbours); normals from the
 //!    [`MapperParams::normal_neighbours`] nearest neighbours (PCA; a grid search that
-//!    answers as kiddo's k-d tree, [`normals`]), oriented towards the camera centre that last saw each voxel.
+//!    answers as kiddo's k-d tree, [`normals`]), oriented towards the camera centre that
+//!    last saw each voxel.
 //! 5. **Meshing** (section 5): Poisson-disk subsampling ([`poisson`]), Ball-Pivoting with
 //!    a list of radii ([`bpa`]) in square xy tiles of [`MapperParams::mesh_tile_m`] meshed
 //!    in parallel ([`bpa::ball_pivoting_tiled`]), vertex colours from the cloud. The mesh
