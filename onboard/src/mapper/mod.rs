@@ -63,6 +63,7 @@ pub mod normals;
 pub mod ply;
 pub mod poisson;
 pub mod voxel;
+pub mod voxel_table;
 
 use camera::RayTable;
 use nalgebra::{Isometry3, Point3};

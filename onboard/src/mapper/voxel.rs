@@ -16,8 +16,8 @@
 //! is accumulated in the same order whatever the thread count: results are bit-identical
 //! across runs and machines. [`VoxelGrid::voxels`] returns the voxels sorted by key.
 
+use super::voxel_table::{PREFETCH_AHEAD, VoxelTable};
 use rayon::prelude::*;
-use rustc_hash::FxHashMap;
 
 /// Number of hash-map shards (a power of two).
 pub const SHARDS: usize = 64;
@@ -27,6 +27,8 @@ pub const AXIS_BITS: u32 = 21;
 const AXIS_OFFSET: i64 = 1 << (AXIS_BITS - 1);
 /// Batches smaller than this are inserted on the calling thread.
 const PARALLEL_MIN_POINTS: usize = 32_768;
+/// Points per chunk of a large batch's parallel passes.
+const CHUNK: usize = 16_384;
 /// Marks a point that has no voxel (NaN, or beyond ±2²⁰ voxels from the origin).
 const NO_KEY: u64 = u64::MAX;
 
@@ -74,20 +76,42 @@ pub struct VoxelPoints {
 #[derive(Clone, Debug)]
 pub struct VoxelGrid {
     voxel_m: f64,
-    shards: Vec<FxHashMap<u64, VoxelAcc>>,
+    shards: Vec<VoxelTable>,
     /// Sensor position of every batch, world frame.
     viewpoints: Vec<[f32; 3]>,
     dropped: u64,
     inserted: u64,
     // Scratch reused between batches.
-    keys: Vec<u64>,
-    order: Vec<u32>,
+    keyed: Vec<Keyed>,
+    sorted: Vec<Keyed>,
 }
 
-/// `(x·K) >> 58` with a 64-bit odd constant: the top bits of a multiplicative hash.
+/// A point of a batch, keyed (see [`VoxelGrid::insert`]).
+#[derive(Clone, Copy, Debug)]
+struct Keyed {
+    /// Packed voxel key, or [`NO_KEY`].
+    key: u64,
+    /// Offset from the voxel's lowest corner, m, rounded to `f32` as the sums take it.
+    offset: [f32; 3],
+    rgb: [u8; 3],
+    /// The key's shard.
+    shard: u8,
+}
+
+impl Keyed {
+    const NONE: Keyed = Keyed {
+        key: NO_KEY,
+        offset: [0.0; 3],
+        rgb: [0; 3],
+        shard: 0,
+    };
+}
+
+/// The shard of a key: the top bits of a multiplicative hash (the bits below them pick
+/// the slot in the shard's table).
 #[inline]
 fn shard_of(key: u64) -> usize {
-    (key.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - SHARDS.trailing_zeros())) as usize
+    super::voxel_table::shard_of(key, SHARDS.trailing_zeros())
 }
 
 impl VoxelGrid {
@@ -95,12 +119,14 @@ impl VoxelGrid {
     pub fn new(voxel_m: f64) -> VoxelGrid {
         VoxelGrid {
             voxel_m,
-            shards: (0..SHARDS).map(|_| FxHashMap::default()).collect(),
+            shards: (0..SHARDS)
+                .map(|_| VoxelTable::new(SHARDS.trailing_zeros()))
+                .collect(),
             viewpoints: Vec::new(),
             dropped: 0,
             inserted: 0,
-            keys: Vec::new(),
-            order: Vec::new(),
+            keyed: Vec::new(),
+            sorted: Vec::new(),
         }
     }
 
@@ -131,10 +157,9 @@ impl VoxelGrid {
 
     /// Approximate heap bytes held by the voxels.
     pub fn memory_bytes(&self) -> usize {
-        let entry = std::mem::size_of::<(u64, VoxelAcc)>() + 1;
         self.shards
             .iter()
-            .map(|s| s.capacity() * entry)
+            .map(VoxelTable::memory_bytes)
             .sum::<usize>()
             + self.viewpoints.capacity() * std::mem::size_of::<[f32; 3]>()
     }
@@ -145,11 +170,7 @@ impl VoxelGrid {
     pub fn prune(&mut self, min_count: u32, before_batch: u32) -> usize {
         self.shards
             .par_iter_mut()
-            .map(|s| {
-                let n = s.len();
-                s.retain(|_, a| a.count >= min_count || a.batch >= before_batch);
-                n - s.len()
-            })
+            .map(|s| s.retain(|a| a.count >= min_count || a.batch >= before_batch))
             .sum()
     }
 
@@ -200,102 +221,154 @@ impl VoxelGrid {
         Self::index_of_key(key).map(|i| i as f64 * voxel_m)
     }
 
+    /// A point keyed: its voxel and shard, its offset from the voxel's corner as the
+    /// sums take it, its colour.
     #[inline]
-    fn accumulate(
-        shard: &mut FxHashMap<u64, VoxelAcc>,
-        voxel_m: f64,
-        key: u64,
-        p: [f64; 3],
-        c: [u8; 3],
-        batch: u32,
-    ) {
-        let corner = Self::corner(key, voxel_m);
-        let acc = shard.entry(key).or_insert(VoxelAcc {
-            offset_sum: [0.0; 3],
-            rgb: [0; 3],
-            count: 0,
-            batch,
-        });
-        for i in 0..3 {
-            acc.offset_sum[i] += (p[i] - corner[i]) as f32;
-            acc.rgb[i] += u32::from(c[i]);
+    fn keyed(&self, p: [f64; 3], rgb: [u8; 3]) -> Keyed {
+        let key = self.key(p);
+        if key == NO_KEY {
+            return Keyed::NONE;
         }
-        acc.count += 1;
+        let corner = Self::corner(key, self.voxel_m);
+        Keyed {
+            key,
+            offset: [0, 1, 2].map(|i| (p[i] - corner[i]) as f32),
+            rgb,
+            shard: shard_of(key) as u8,
+        }
+    }
+
+    /// Adds a run of points that share a key to its voxel, in order: one look-up for
+    /// the run, the same sums, bit for bit, as one look-up per point (an `f32` sum
+    /// depends on its order, which is the run's).
+    #[inline]
+    fn accumulate_run(shard: &mut VoxelTable, run: &[Keyed], batch: u32) {
+        let acc = shard.entry(
+            run[0].key,
+            VoxelAcc {
+                offset_sum: [0.0; 3],
+                rgb: [0; 3],
+                count: 0,
+                batch,
+            },
+        );
+        for k in run {
+            for i in 0..3 {
+                acc.offset_sum[i] += k.offset[i];
+                acc.rgb[i] += u32::from(k.rgb[i]);
+            }
+            acc.count += 1;
+        }
         acc.batch = batch;
     }
 
     /// Adds a batch of world points with their colours, all seen from `viewpoint` (the
     /// sensor position, world frame). `colors` must be as long as `points`.
+    ///
+    /// A large batch goes in three parallel passes over fixed chunks (the same work
+    /// whatever the thread count): the points keyed, with each chunk's count per shard;
+    /// the keyed points moved into shard order (a counting sort that keeps input order
+    /// within a shard), so each shard reads its points from one contiguous run; each
+    /// shard's points added in order, runs of one voxel (neighbouring pixels) with one
+    /// look-up, the table slots of the points ahead prefetched.
     pub fn insert(&mut self, points: &[[f64; 3]], colors: &[[u8; 3]], viewpoint: [f32; 3]) {
         let n = points.len().min(colors.len());
         let (points, colors) = (&points[..n], &colors[..n]);
         let batch = self.viewpoints.len() as u32;
         self.viewpoints.push(viewpoint);
-        let voxel_m = self.voxel_m;
+        let mut keyed = std::mem::take(&mut self.keyed);
+        keyed.clear();
         if n < PARALLEL_MIN_POINTS {
-            for (p, c) in points.iter().zip(colors) {
-                let key = self.key(*p);
-                if key == NO_KEY {
-                    self.dropped += 1;
-                    continue;
+            keyed.extend(points.iter().zip(colors).map(|(p, c)| self.keyed(*p, *c)));
+            for run in keyed.chunk_by(|a, b| a.key == b.key) {
+                if run[0].key == NO_KEY {
+                    self.dropped += run.len() as u64;
+                } else {
+                    self.inserted += run.len() as u64;
+                    let shard = &mut self.shards[usize::from(run[0].shard)];
+                    Self::accumulate_run(shard, run, batch);
                 }
-                self.inserted += 1;
-                let shard = &mut self.shards[shard_of(key)];
-                Self::accumulate(shard, voxel_m, key, *p, *c, batch);
             }
+            self.keyed = keyed;
             return;
         }
-        // Keys in parallel.
-        let mut keys = std::mem::take(&mut self.keys);
-        keys.clear();
-        keys.resize(n, 0);
+        // Keyed, and counted per chunk and shard (the last column: no voxel).
+        keyed.resize(n, Keyed::NONE);
         let this = &*self;
-        keys.par_chunks_mut(8192)
-            .zip(points.par_chunks(8192))
-            .for_each(|(k, p)| {
-                for (k, p) in k.iter_mut().zip(p) {
-                    *k = this.key(*p);
+        let counts: Vec<[usize; SHARDS + 1]> = keyed
+            .par_chunks_mut(CHUNK)
+            .zip(points.par_chunks(CHUNK).zip(colors.par_chunks(CHUNK)))
+            .map(|(out, (p, c))| {
+                let mut count = [0usize; SHARDS + 1];
+                for (o, (p, c)) in out.iter_mut().zip(p.iter().zip(c)) {
+                    *o = this.keyed(*p, *c);
+                    let s = if o.key == NO_KEY {
+                        SHARDS
+                    } else {
+                        usize::from(o.shard)
+                    };
+                    count[s] += 1;
                 }
-            });
-        // Counting sort of point indices by shard (stable: input order within a shard).
-        let mut counts = [0usize; SHARDS + 1];
-        let mut dropped = 0u64;
-        for &k in &keys {
-            if k == NO_KEY {
-                dropped += 1;
-            } else {
-                counts[shard_of(k) + 1] += 1;
+                count
+            })
+            .collect();
+        let dropped: usize = counts.iter().map(|c| c[SHARDS]).sum();
+        // Shard order: shard by shard, within a shard chunk by chunk.
+        let mut sorted = std::mem::take(&mut self.sorted);
+        sorted.clear();
+        sorted.resize(n - dropped, Keyed::NONE);
+        let mut to: Vec<Vec<&mut [Keyed]>> =
+            counts.iter().map(|_| Vec::with_capacity(SHARDS)).collect();
+        let mut shard_runs: Vec<&[Keyed]> = Vec::with_capacity(SHARDS);
+        {
+            let mut rest: &mut [Keyed] = &mut sorted;
+            let mut shard_lens = [0usize; SHARDS];
+            for (s, len) in shard_lens.iter_mut().enumerate() {
+                for (c, count) in counts.iter().enumerate() {
+                    let (head, tail) = std::mem::take(&mut rest).split_at_mut(count[s]);
+                    to[c].push(head);
+                    rest = tail;
+                    *len += count[s];
+                }
+            }
+            to.into_par_iter()
+                .zip(keyed.par_chunks(CHUNK))
+                .for_each(|(mut to, from)| {
+                    let mut fill = [0usize; SHARDS];
+                    for k in from.iter().filter(|k| k.key != NO_KEY) {
+                        let s = usize::from(k.shard);
+                        to[s][fill[s]] = *k;
+                        fill[s] += 1;
+                    }
+                });
+            let mut rest: &[Keyed] = &sorted;
+            for len in shard_lens {
+                let (head, tail) = rest.split_at(len);
+                shard_runs.push(head);
+                rest = tail;
             }
         }
-        for s in 0..SHARDS {
-            counts[s + 1] += counts[s];
-        }
-        let mut order = std::mem::take(&mut self.order);
-        order.clear();
-        order.resize(counts[SHARDS], 0);
-        let mut next = counts;
-        for (i, &k) in keys.iter().enumerate() {
-            if k != NO_KEY {
-                let s = shard_of(k);
-                order[next[s]] = i as u32;
-                next[s] += 1;
-            }
-        }
-        self.dropped += dropped;
-        self.inserted += (n as u64) - dropped;
-        let (keys_ref, order_ref) = (&keys, &order);
+        self.dropped += dropped as u64;
+        self.inserted += (n - dropped) as u64;
         self.shards
             .par_iter_mut()
-            .enumerate()
-            .for_each(|(s, shard)| {
-                for &i in &order_ref[counts[s]..counts[s + 1]] {
-                    let i = i as usize;
-                    let (k, p, c) = (keys_ref[i], points[i], colors[i]);
-                    Self::accumulate(shard, voxel_m, k, p, c, batch);
+            .zip(shard_runs)
+            .for_each(|(shard, list)| {
+                let (mut start, mut fetched) = (0, 0);
+                for run in list.chunk_by(|a, b| a.key == b.key) {
+                    let ahead = (start + PREFETCH_AHEAD).min(list.len());
+                    while fetched < ahead {
+                        if fetched == 0 || list[fetched - 1].key != list[fetched].key {
+                            shard.prefetch(list[fetched].key);
+                        }
+                        fetched += 1;
+                    }
+                    Self::accumulate_run(shard, run, batch);
+                    start += run.len();
                 }
             });
-        self.keys = keys;
-        self.order = order;
+        self.keyed = keyed;
+        self.sorted = sorted;
     }
 
     fn voxel(&self, key: u64, a: &VoxelAcc) -> Voxel {
@@ -318,7 +391,7 @@ impl VoxelGrid {
         let mut out: Vec<Voxel> = self
             .shards
             .par_iter()
-            .flat_map_iter(|s| s.iter().map(|(&key, a)| self.voxel(key, a)))
+            .flat_map_iter(|s| s.iter().map(|(key, a)| self.voxel(key, a)))
             .collect();
         out.par_sort_unstable_by_key(|v| v.key);
         out
@@ -333,8 +406,8 @@ impl VoxelGrid {
         let mut runs = Vec::with_capacity(shards.len());
         for shard in shards {
             let mut run =
-                Vec::with_capacity(shard.values().filter(|a| a.count >= min_count).count());
-            run.extend(shard.into_iter().filter(|(_, a)| a.count >= min_count));
+                Vec::with_capacity(shard.iter().filter(|(_, a)| a.count >= min_count).count());
+            run.extend(shard.into_entries().filter(|(_, a)| a.count >= min_count));
             run.par_sort_unstable_by_key(|e| e.0);
             runs.push(run);
             release_freed_memory();
@@ -456,6 +529,53 @@ mod tests {
         }
         assert_eq!(big.voxels(), small.voxels());
         assert_eq!(big.inserted(), 100_000);
+    }
+
+    #[test]
+    fn sums_are_those_of_one_point_at_a_time_in_input_order() {
+        // Rows of a "depth image": runs of neighbouring points in one voxel, runs
+        // interleaved with other voxels, a NaN and an out-of-range point among them.
+        let mut pts: Vec<[f64; 3]> = Vec::new();
+        for v in 0..300 {
+            for u in 0..400 {
+                let (x, y) = (f64::from(u) * 0.0031, f64::from(v) * 0.0027);
+                pts.push([x, y, 0.5 + 0.01 * (x * 7.0).sin() + 0.003 * y]);
+            }
+        }
+        pts[777] = [f64::NAN, 0.0, 0.0];
+        pts[778] = [1e9, 0.0, 0.0];
+        let cols: Vec<[u8; 3]> = (0..pts.len()).map(|i| [(i % 256) as u8, 1, 2]).collect();
+        for batch in [pts.len(), 1000] {
+            let mut g = VoxelGrid::new(0.01);
+            for (p, c) in pts.chunks(batch).zip(cols.chunks(batch)) {
+                g.insert(p, c, [0.0; 3]);
+            }
+            // The reference: one point at a time, a map look-up each, in input order.
+            let mut sums: std::collections::BTreeMap<u64, ([f32; 3], [u32; 3], u32)> =
+                Default::default();
+            for (p, c) in pts.iter().zip(&cols) {
+                let Some(idx) = g.index_of(*p) else { continue };
+                let corner = idx.map(|i| i as f64 * 0.01);
+                let e = sums.entry(VoxelGrid::key_of_index(idx)).or_default();
+                for i in 0..3 {
+                    e.0[i] += (p[i] - corner[i]) as f32;
+                    e.1[i] += u32::from(c[i]);
+                }
+                e.2 += 1;
+            }
+            let voxels = g.voxels();
+            assert_eq!(voxels.len(), sums.len());
+            assert_eq!(g.dropped(), 2);
+            let mut runs = 0;
+            for (v, (key, (off, rgb, count))) in voxels.iter().zip(&sums) {
+                assert_eq!((v.key, v.count), (*key, *count));
+                let shard = &g.shards[shard_of(*key)];
+                let acc = *shard.get(*key).expect("the voxel is in its shard");
+                assert_eq!((acc.offset_sum, acc.rgb), (*off, *rgb), "voxel {key}");
+                runs += usize::from(*count > 1);
+            }
+            assert!(runs > voxels.len() / 2, "most voxels take several points");
+        }
     }
 
     #[test]
