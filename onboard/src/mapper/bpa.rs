@@ -224,11 +224,10 @@ impl Bpa<'_> {
         let u0 = sub(&e.center, &m);
         let reach2 = 4.0 * rho * rho;
         let mut best: Option<(f64, u32, [f64; 3])> = None;
-        grid.for_each_near(&m, |k| {
+        grid.for_each_near(&m, |k, pk| {
             if k == e.s || k == e.t || k == e.o {
                 return;
             }
-            let pk = &self.p[k as usize];
             if dist2(pk, &m) > reach2 {
                 return;
             }
@@ -271,14 +270,13 @@ impl Bpa<'_> {
     /// Whether point `q`, not one of `skip`, lies strictly inside the ball (radius `rho`
     /// less [`EMPTY_BALL_TOLERANCE`]).
     #[inline]
-    fn inside(&self, q: u32, center: &[f64; 3], rho: f64, skip: [u32; 3]) -> bool {
-        !skip.contains(&q)
-            && dist2(&self.p[q as usize], center) < rho * rho * (1.0 - EMPTY_BALL_TOLERANCE)
+    fn inside(q: u32, pq: &[f64; 3], center: &[f64; 3], rho: f64, skip: [u32; 3]) -> bool {
+        !skip.contains(&q) && dist2(pq, center) < rho * rho * (1.0 - EMPTY_BALL_TOLERANCE)
     }
 
     /// Whether no point other than `skip` lies strictly inside the ball.
     fn ball_is_empty(&self, grid: &PointGrid, center: &[f64; 3], rho: f64, skip: [u32; 3]) -> bool {
-        !grid.any_near(center, |q| self.inside(q, center, rho, skip))
+        !grid.any_near(center, |q, pq| Self::inside(q, pq, center, rho, skip))
     }
 
     /// [`Bpa::ball_is_empty`] for a ball through `pv`, looking only at `near` (every
@@ -288,7 +286,7 @@ impl Bpa<'_> {
     /// centre farther than that takes the grid, so the answer is the same either way.
     fn ball_is_empty_near(
         &self,
-        near: &[u32],
+        near: &[(u32, [f64; 3])],
         pv: &[f64; 3],
         grid: &PointGrid,
         center: &[f64; 3],
@@ -299,7 +297,9 @@ impl Bpa<'_> {
         if dist2(center, pv) > lim * lim {
             return self.ball_is_empty(grid, center, rho, skip);
         }
-        !near.iter().any(|&q| self.inside(q, center, rho, skip))
+        !near
+            .iter()
+            .any(|(q, pq)| Self::inside(*q, pq, center, rho, skip))
     }
 
     /// Tries to start a new triangle at unused vertex `v`.
@@ -311,16 +311,16 @@ impl Bpa<'_> {
         v: u32,
         grid: &PointGrid,
         rho: f64,
-        near: &mut Vec<u32>,
+        near: &mut Vec<(u32, [f64; 3])>,
         scratch: &mut Vec<u32>,
     ) -> bool {
         let pv = self.p[v as usize];
         near.clear();
-        grid.within(self.p, &pv, 2.0 * rho, near);
+        grid.within(&pv, 2.0 * rho, near);
         scratch.clear();
         scratch.extend(
             near.iter()
-                .copied()
+                .map(|&(q, _)| q)
                 .filter(|&q| q != v && !self.used[q as usize]),
         );
         let nearer = |a: &u32, b: &u32| {

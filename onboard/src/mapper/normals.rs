@@ -161,6 +161,8 @@ struct Scratch {
     dist: Vec<f32>,
     /// The current best (squared distance, index), nearest first.
     nn: Vec<(f32, u32)>,
+    /// Candidates of the block as `(distance bits << 32) | index`.
+    packed: Vec<u64>,
 }
 
 /// The z bits of a cell key (the rest is its column).
@@ -332,20 +334,34 @@ impl<'a> KnnGrid<'a> {
         }
         s.dist.clear();
         s.dist.extend(s.cand.iter().map(|(q, _)| dist2(p, q)));
-        s.nn.clear();
-        s.nn.resize(s.cand.len(), (0.0, 0));
+        // Those nearer than `lim` as (distance bits, index) in one integer: a squared
+        // distance is never negative (nor -0: `dist2` starts from +0), so integer order
+        // is the order by distance, then index, and sorting takes integer compares.
+        s.packed.clear();
+        s.packed.resize(s.cand.len(), 0);
         let mut n = 0;
         for (d, (_, i)) in s.dist.iter().zip(&s.cand) {
-            s.nn[n] = (*d, *i);
+            s.packed[n] = (u64::from(d.to_bits()) << 32) | u64::from(*i);
             n += usize::from(*d < lim);
         }
-        s.nn.truncate(n);
+        s.packed.truncate(n);
         if n >= k {
-            keep_nearest(&mut s.nn, k);
+            if n > 4 * k {
+                s.packed.select_nth_unstable(k - 1);
+                s.packed.truncate(k);
+            }
+            s.packed.sort_unstable();
+            s.nn.clear();
+            s.nn.extend(
+                s.packed[..k]
+                    .iter()
+                    .map(|&e| (f32::from_bits((e >> 32) as u32), e as u32)),
+            );
             return;
         }
+        // Fewer than k within the proof's reach: all of the block, then shells.
         s.nn.clear();
-        s.nn.extend(s.cand.iter().map(|(q, i)| (dist2(p, q), *i)));
+        s.nn.extend(s.dist.iter().copied().zip(s.cand.iter().map(|(_, i)| *i)));
         keep_nearest(&mut s.nn, k);
         // The shells of a widened search go after the block and are dropped again for
         // the cell's next point.
