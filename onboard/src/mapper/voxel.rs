@@ -398,21 +398,22 @@ impl VoxelGrid {
     }
 
     /// The raw sums of the voxels with at least `min_count` points as one run per shard,
-    /// each sorted by key. Each shard is freed, and its memory handed back to the system
-    /// ([`release_freed_memory`]), as soon as it is read, so the grid and its runs are
-    /// never both held whole.
+    /// each sorted by key, shards in parallel. Each shard is freed, and its memory handed
+    /// back to the system ([`release_freed_memory`]), as soon as it is read, so the grid
+    /// and its runs are never both held whole.
     fn take_sorted_runs(&mut self, min_count: u32) -> Vec<Vec<(u64, VoxelAcc)>> {
         let shards = std::mem::take(&mut self.shards);
-        let mut runs = Vec::with_capacity(shards.len());
-        for shard in shards {
-            let mut run =
-                Vec::with_capacity(shard.iter().filter(|(_, a)| a.count >= min_count).count());
-            run.extend(shard.into_entries().filter(|(_, a)| a.count >= min_count));
-            run.par_sort_unstable_by_key(|e| e.0);
-            runs.push(run);
-            release_freed_memory();
-        }
-        runs
+        shards
+            .into_par_iter()
+            .map(|shard| {
+                let mut run =
+                    Vec::with_capacity(shard.iter().filter(|(_, a)| a.count >= min_count).count());
+                run.extend(shard.into_entries().filter(|(_, a)| a.count >= min_count));
+                run.sort_unstable_by_key(|e| e.0);
+                release_freed_memory();
+                run
+            })
+            .collect()
     }
 
     /// Calls `f` on the voxels of `runs` in ascending key order (a k-way merge; keys are
