@@ -2,7 +2,8 @@
 //! (position, colour, count, last viewpoint), so memory grows with the mapped area and
 //! not with the number of frames.
 //!
-//! A voxel takes 40 bytes in its shard (before the hash table's slack): the key, the sum
+//! A voxel takes a 40-byte slot in its shard's table ([`super::voxel_table`], at most
+//! three quarters full): the key, the sum
 //! of its points' offsets from the voxel's corner in `f32` (an offset is below one voxel
 //! edge, so the centroid is exact to about `count · 1e-7` voxel edges), the colour sums,
 //! the count and the index of the batch (frame) that saw it last; the batches' sensor
@@ -10,9 +11,9 @@
 //! few points that no recent batch touched: the depth noise of a far surface scatters
 //! single points over many voxels that never see a second one.
 //!
-//! The map is split into [`SHARDS`] hash maps by a hash of the key. A batch of points is
-//! keyed in parallel, bucketed by shard (a counting sort that keeps input order), and the
-//! shards are filled in parallel. Each shard sees its points in input order, so every sum
+//! The map is split into [`SHARDS`] hash tables by a hash of the key. A batch of points
+//! is keyed in parallel, moved into shard order (a counting sort that keeps input order),
+//! and the shards are filled in parallel, each prefetching the slots of the points ahead. Each shard sees its points in input order, so every sum
 //! is accumulated in the same order whatever the thread count: results are bit-identical
 //! across runs and machines. [`VoxelGrid::voxels`] returns the voxels sorted by key.
 
