@@ -173,12 +173,7 @@ mod tests {
         // A second method: every point tested. Clustered points (many per cell, tall
         // columns), points on cell faces, negative coordinates, a NaN left out.
         let mut state: u64 = 0x9E37_79B9_7F4A_7C15;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = || crate::mapper::test_rng::next_unit(&mut state);
         let mut pts: Vec<[f64; 3]> = (0..20_000)
             .map(|_| [next() * 0.3 - 0.1, next() * 0.2 - 0.15, next() * 1.5 - 0.5])
             .collect();

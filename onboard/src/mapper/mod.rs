@@ -65,6 +65,23 @@ pub mod poisson;
 pub mod voxel;
 pub mod voxel_table;
 
+/// Test inputs: xorshift64 (Marsaglia), and a uniform number in [0, 1) from it.
+#[cfg(test)]
+pub(crate) mod test_rng {
+    /// The next state of xorshift64 (`state` must not be 0).
+    pub fn next_u64(state: &mut u64) -> u64 {
+        *state ^= *state << 13;
+        *state ^= *state >> 7;
+        *state ^= *state << 17;
+        *state
+    }
+
+    /// A uniform `f64` in [0, 1) from the top 53 bits of the next state.
+    pub fn next_unit(state: &mut u64) -> f64 {
+        (next_u64(state) >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
 use camera::RayTable;
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;

@@ -3,20 +3,21 @@
 //! not with the number of frames.
 //!
 //! A voxel takes a 40-byte slot in its shard's table ([`super::voxel_table`], at most
-//! three quarters full): the key, the sum
-//! of its points' offsets from the voxel's corner in `f32` (an offset is below one voxel
-//! edge, so the centroid is exact to about `count · 1e-7` voxel edges), the colour sums,
-//! the count and the index of the batch (frame) that saw it last; the batches' sensor
-//! positions are kept once, in a table. [`VoxelGrid::prune`] drops the voxels with too
+//! three quarters full): the key, the sum of its points' offsets from the voxel's corner
+//! in `f32` (an offset is below one voxel edge, so the centroid is exact to about
+//! `count · 1e-7` voxel edges), the colour sums, the count and the index of the batch
+//! (frame) that saw it last; the batches' sensor positions are kept once, in a table. [`VoxelGrid::prune`] drops the voxels with too
 //! few points that no recent batch touched: the depth noise of a far surface scatters
 //! single points over many voxels that never see a second one.
 //!
 //! The map is split into [`SHARDS`] hash tables by a hash of the key. A batch of points
 //! is keyed in parallel, moved into shard order (a counting sort that keeps input order),
-//! and the shards are filled in parallel, each prefetching the slots of the points ahead. Each shard sees its points in input order, so every sum
-//! is accumulated in the same order whatever the thread count: results are bit-identical
-//! across runs and machines. [`VoxelGrid::voxels`] returns the voxels sorted by key.
+//! and the shards are filled in parallel, each prefetching the slots of the points
+//! ahead. Each shard sees its points in input order, so every sum is accumulated in the
+//! same order whatever the thread count: results are bit-identical across runs and
+//! machines. [`VoxelGrid::voxels`] returns the voxels sorted by key.
 
+pub use super::voxel_table::VoxelAcc;
 use super::voxel_table::{PREFETCH_AHEAD, VoxelTable};
 use rayon::prelude::*;
 
@@ -32,19 +33,6 @@ const PARALLEL_MIN_POINTS: usize = 32_768;
 const CHUNK: usize = 16_384;
 /// Marks a point that has no voxel (NaN, or beyond ±2²⁰ voxels from the origin).
 const NO_KEY: u64 = u64::MAX;
-
-/// Running sums of one voxel.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct VoxelAcc {
-    /// Sum of the points' offsets from the voxel's lowest corner, m.
-    pub offset_sum: [f32; 3],
-    /// Sum of the sRGB colours.
-    pub rgb: [u32; 3],
-    /// Number of points.
-    pub count: u32,
-    /// The batch ([`VoxelGrid::insert`] call) that touched the voxel last.
-    pub batch: u32,
-}
 
 /// One occupied voxel of the output: the centroid and mean colour of its points.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -98,6 +86,9 @@ struct Keyed {
     /// The key's shard.
     shard: u8,
 }
+
+// A shard index fits `Keyed::shard`.
+const _: () = assert!(SHARDS <= 256);
 
 impl Keyed {
     const NONE: Keyed = Keyed {
@@ -584,12 +575,7 @@ mod tests {
     fn points_are_the_voxels_as_arrays_in_key_order() {
         // 50 k uniform points (xorshift) in 8000 voxels: 6.25 per voxel on average.
         let mut state: u64 = 0x2545_F491_4F6C_DD1D;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = || crate::mapper::test_rng::next_unit(&mut state);
         let pts: Vec<[f64; 3]> = (0..50_000).map(|_| [next(), next(), next()]).collect();
         let cols = vec![[10, 20, 30]; pts.len()];
         let mut g = VoxelGrid::new(0.05);

@@ -1,6 +1,6 @@
-//! The hash table of one [`super::voxel::VoxelGrid`] shard: open addressing with linear
-//! probing over one array of `(key, sums)` slots, so a batch can *prefetch* the slot of
-//! a point several points ahead while it adds the current one.
+//! The hash table of one shard of the voxel grid (`voxel::VoxelGrid`): open addressing
+//! with linear probing over one array of `(key, sums)` slots, so a batch can *prefetch*
+//! the slot of a point several points ahead while it adds the current one.
 //!
 //! A map of millions of 1 cm voxels is hundreds of megabytes: nearly every look-up
 //! misses the caches, and one point at a time waits for each miss in turn (a profile of
@@ -14,7 +14,18 @@
 //! empty itself). The table doubles when live and deleted slots pass three quarters of
 //! it, and is rebuilt at its size when tombstones alone would make it grow.
 
-use super::voxel::VoxelAcc;
+/// Running sums of one voxel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VoxelAcc {
+    /// Sum of the points' offsets from the voxel's lowest corner, m.
+    pub offset_sum: [f32; 3],
+    /// Sum of the sRGB colours.
+    pub rgb: [u32; 3],
+    /// Number of points.
+    pub count: u32,
+    /// The batch (`VoxelGrid::insert` call) that touched the voxel last.
+    pub batch: u32,
+}
 
 /// An empty slot (no packed key reaches it: keys have 63 bits).
 const EMPTY: u64 = u64::MAX;
@@ -268,12 +279,7 @@ mod tests {
     fn behaves_as_a_hash_map_through_inserts_deletes_and_growth() {
         // A second method: std's HashMap, driven by the same random operations.
         let mut state: u64 = 0x1234_5678_9ABC_DEF1;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut next = || crate::mapper::test_rng::next_u64(&mut state);
         for shard_bits in [0, 6] {
             let mut t = VoxelTable::new(shard_bits);
             let mut reference: HashMap<u64, u32> = HashMap::new();
