@@ -238,10 +238,8 @@ impl VoxelGrid {
         let acc = shard.entry(
             run[0].key,
             VoxelAcc {
-                offset_sum: [0.0; 3],
-                rgb: [0; 3],
-                count: 0,
                 batch,
+                ..VoxelAcc::ZERO
             },
         );
         for k in run {

@@ -27,6 +27,16 @@ pub struct VoxelAcc {
     pub batch: u32,
 }
 
+impl VoxelAcc {
+    /// No points yet (batch 0).
+    pub const ZERO: VoxelAcc = VoxelAcc {
+        offset_sum: [0.0; 3],
+        rgb: [0; 3],
+        count: 0,
+        batch: 0,
+    };
+}
+
 /// An empty slot (no packed key reaches it: keys have 63 bits).
 const EMPTY: u64 = u64::MAX;
 /// A deleted slot.
@@ -53,12 +63,7 @@ struct Slot {
 
 const VACANT: Slot = Slot {
     key: EMPTY,
-    acc: VoxelAcc {
-        offset_sum: [0.0; 3],
-        rgb: [0; 3],
-        count: 0,
-        batch: 0,
-    },
+    acc: VoxelAcc::ZERO,
 };
 
 /// One shard's voxels: packed key → running sums.
@@ -266,15 +271,6 @@ mod tests {
     use super::*;
     use std::collections::HashMap;
 
-    fn acc(count: u32) -> VoxelAcc {
-        VoxelAcc {
-            offset_sum: [0.0; 3],
-            rgb: [0; 3],
-            count,
-            batch: 0,
-        }
-    }
-
     #[test]
     fn behaves_as_a_hash_map_through_inserts_deletes_and_growth() {
         // A second method: std's HashMap, driven by the same random operations.
@@ -292,7 +288,7 @@ mod tests {
                         continue;
                     }
                     t.prefetch(key);
-                    t.entry(key, acc(0)).count += 1;
+                    t.entry(key, VoxelAcc::ZERO).count += 1;
                     *reference.entry(key).or_default() += 1;
                 }
                 // Drop about half, as the grid's prune does.
