@@ -452,6 +452,54 @@ pub fn shaded_frames_per_second(
     views.len() as f64 / best
 }
 
+/// Milliseconds of the D435 depth model ([`StereoDepthNoise`]: occlusion, edges, the
+/// correlated disparity noise, range gates, millimetres) on one rendered 640×480 depth
+/// frame of each of [`bench_views`] (the D435's 640×480 depth mode), all threads; best of
+/// `repeats` rounds, mean over the views.
+///
+/// [`StereoDepthNoise`]: vinebench_sim::render::camera::StereoDepthNoise
+pub fn depth_model_ms(renderer: &vinebench_sim::render::shade::Renderer, repeats: usize) -> f64 {
+    use vinebench_sim::render::camera::{
+        CameraSpec, D435DepthMode, DepthScratch, StereoDepthNoise,
+    };
+    use vinebench_sim::render::shade::Frame;
+    let spec = CameraSpec::d435_depth(D435DepthMode::W640H480, 15.0);
+    let Some(stereo) = spec.stereo else {
+        return f64::NAN;
+    };
+    let intr = spec.intrinsics;
+    let model = StereoDepthNoise::new(&intr, &stereo);
+    let rays = intr.pixel_rays();
+    let views = bench_views();
+    let mut frame = Frame::new(intr.width, intr.height);
+    let depths: Vec<Vec<f32>> = views
+        .iter()
+        .map(|pose| {
+            renderer.render(&rays, pose, (1.0 / intr.fx) as f32, 200.0, &mut frame);
+            frame.depth_m.clone()
+        })
+        .collect();
+    let mut out = vec![0u16; depths.first().map_or(0, Vec::len)];
+    let mut scratch = DepthScratch::new();
+    let mut rng = vinebench_sim::rng::stream(35, "bench.depth");
+    let mut best = f64::INFINITY;
+    for _ in 0..repeats.max(1) {
+        let t0 = Instant::now();
+        for depth in &depths {
+            model.apply(
+                intr.width,
+                intr.height,
+                depth,
+                &mut out,
+                &mut scratch,
+                &mut rng,
+            );
+        }
+        best = best.min(t0.elapsed().as_secs_f64());
+    }
+    1e3 * best / depths.len().max(1) as f64
+}
+
 /// The SLAM feature front-end ([`vinebench_onboard::slam::bench`]) on a rendered, rectified 752×480
 /// stereo pair (93° HFOV, 12 cm baseline: the rover's ZED 2i-like cameras) at the first
 /// of [`bench_views`]: ORB extraction of one image, stereo matching of the pair, and the
@@ -679,6 +727,12 @@ pub fn render_figures(quick: bool, tracer_only: bool) -> Result<Vec<Figure>, Ben
         name: "render: shaded 640x480 frames (cast + textures + shadows), all threads",
         value: shaded_frames_per_second(&bvh, repeats),
         unit: "frames/s",
+        target: None,
+    });
+    out.push(Figure {
+        name: "render: D435 depth model (occlusion, edges, noise) of one 640x480 frame, all threads",
+        value: depth_model_ms(&bvh, repeats),
+        unit: "ms",
         target: None,
     });
     out.extend(slam_feature_figures(&bvh, repeats)?);

@@ -936,6 +936,8 @@ pub struct DepthScratch {
     noise: Vec<f32>,
     tmp: Vec<f32>,
     suffix_min: Vec<f64>,
+    /// Per pixel: the true depth if valid (else NaN) and its near-side edge threshold.
+    edge_keys: Vec<[f32; 2]>,
 }
 
 impl DepthScratch {
@@ -1100,6 +1102,9 @@ impl StereoDepthNoise {
         let thr = self.edge_threshold;
         let dropout_below = (self.edge_dropout.clamp(0.0, 1.0) * 4_294_967_296.0) as u64;
         let valid = |z: f32| z.is_finite() && z > 0.0;
+        scratch.edge_keys.resize(n, [0.0; 2]);
+        edge_keys(truth_m, w, thr, &mut scratch.edge_keys);
+        let keys = &scratch.edge_keys;
         let noise = &scratch.noise;
 
         out_mm
@@ -1135,19 +1140,7 @@ impl StereoDepthNoise {
                         }
                     }
                     // Edges in the 3×3 neighbourhood.
-                    let (mut far_side, mut near_side) = (false, false);
-                    for vv in v.saturating_sub(1)..(v + 2).min(h) {
-                        for uu in u.saturating_sub(1)..(u + 2).min(w) {
-                            let zq = truth_m[vv * w + uu];
-                            if !valid(zq) {
-                                near_side = true;
-                            } else if z - zq > (thr * zf) as f32 {
-                                far_side = true;
-                            } else if zq - z > (thr * f64::from(zq)) as f32 {
-                                near_side = true;
-                            }
-                        }
-                    }
+                    let (far_side, near_side) = edge_sides(keys, w, h, u, v, (thr * zf) as f32);
                     if far_side || (near_side && (dropout.bits(i as u64) >> 32) < dropout_below) {
                         continue;
                     }
@@ -1179,20 +1172,113 @@ impl StereoDepthNoise {
     }
 }
 
+/// Each pixel's depth (NaN where it is no return: 0, negative or not finite) and the
+/// threshold `thr·z` against which a farther neighbour is compared, computed once per
+/// pixel for [`edge_sides`] (rows in parallel).
+fn edge_keys(truth_m: &[f32], w: usize, thr: f64, keys: &mut [[f32; 2]]) {
+    keys.par_chunks_mut(w)
+        .zip(truth_m.par_chunks(w))
+        .for_each(|(keys, row)| {
+            for (k, &z) in keys.iter_mut().zip(row) {
+                *k = if z.is_finite() && z > 0.0 {
+                    [z, (thr * f64::from(z)) as f32]
+                } else {
+                    [f32::NAN, 0.0]
+                };
+            }
+        });
+}
+
+/// The edge step of [`StereoDepthNoise`] at pixel `(u, v)` (valid depth `z`, `tz` =
+/// `thr·z` as `f32`), on [`edge_keys`]: whether its 3×3 neighbourhood holds a nearer
+/// surface by more than `tz` (far side of a discontinuity), and whether it holds a
+/// farther surface by more than `thr` of that one's depth or a no-return pixel (near
+/// side). NaN keys compare false, so a no-return neighbour counts only as near. Where
+/// the far side holds, the near side is not needed (the pixel is dropped either way) and
+/// may be either.
+#[inline(always)]
+fn edge_sides(keys: &[[f32; 2]], w: usize, h: usize, u: usize, v: usize, tz: f32) -> (bool, bool) {
+    let i = v * w + u;
+    let z = keys[i][0];
+    let (mut far, mut near) = (false, false);
+    let mut look = |j: usize| {
+        let [zq, tq] = keys[j];
+        far |= z - zq > tz;
+        near |= zq.is_nan() | (zq - z > tq);
+    };
+    if u >= 1 && u + 1 < w && v >= 1 && v + 1 < h {
+        for j in [
+            i - w - 1,
+            i - w,
+            i - w + 1,
+            i - 1,
+            i,
+            i + 1,
+            i + w - 1,
+            i + w,
+            i + w + 1,
+        ] {
+            look(j);
+        }
+    } else {
+        for vv in v.saturating_sub(1)..(v + 2).min(h) {
+            for uu in u.saturating_sub(1)..(u + 2).min(w) {
+                look(vv * w + uu);
+            }
+        }
+    }
+    (far, near)
+}
+
 /// Box filter of radius `r` along rows (`horizontal`) or columns, each output divided by
 /// the square root of its (border-clipped) window size, so i.i.d. unit-variance input
 /// stays unit-variance.
+///
+/// Each output is the window's samples added in index order onto `-0.0` (what
+/// `Iterator::sum` does), one window offset at a time over the whole row, so the adds
+/// run over contiguous slices (vector instructions) with the same bits as a sum per
+/// pixel.
 fn box_unit_variance(src: &[f32], dst: &mut [f32], w: usize, h: usize, r: usize, horizontal: bool) {
+    let divisor = |count: usize| (count as f32).sqrt();
     dst.par_chunks_mut(w).enumerate().for_each(|(v, out)| {
-        for (u, o) in out.iter_mut().enumerate() {
-            let (sum, count) = if horizontal {
+        out.fill(-0.0);
+        if horizontal {
+            let row = &src[v * w..(v + 1) * w];
+            // Offset k = j − r of the window: out[u] += row[u + k] where it exists.
+            for j in 0..=2 * r {
+                let (first_out, first_in) = if j < r { (r - j, 0) } else { (0, j - r) };
+                if first_out >= w || first_in >= w {
+                    continue;
+                }
+                let len = (w - first_out).min(w - first_in);
+                for (o, x) in out[first_out..first_out + len]
+                    .iter_mut()
+                    .zip(&row[first_in..first_in + len])
+                {
+                    *o += x;
+                }
+            }
+            let inner = divisor((2 * r + 1).min(w));
+            for (u, o) in out.iter_mut().enumerate() {
                 let (lo, hi) = (u.saturating_sub(r), (u + r + 1).min(w));
-                (src[v * w + lo..v * w + hi].iter().sum::<f32>(), hi - lo)
-            } else {
-                let (lo, hi) = (v.saturating_sub(r), (v + r + 1).min(h));
-                ((lo..hi).map(|vv| src[vv * w + u]).sum::<f32>(), hi - lo)
-            };
-            *o = sum / (count as f32).sqrt();
+                let d = if hi - lo == 2 * r + 1 {
+                    inner
+                } else {
+                    divisor(hi - lo)
+                };
+                *o /= d;
+            }
+        } else {
+            let (lo, hi) = (v.saturating_sub(r), (v + r + 1).min(h));
+            for vv in lo..hi {
+                for (o, x) in out.iter_mut().zip(&src[vv * w..(vv + 1) * w]) {
+                    *o += x;
+                }
+            }
+            let d = divisor(hi - lo);
+            for o in out.iter_mut() {
+                *o /= d;
+            }
         }
     });
 }
@@ -1870,6 +1956,108 @@ mod tests {
         let valid: Vec<u16> = out.iter().copied().filter(|&mm| mm != 0).collect();
         assert!(valid.len() > out.len() / 2);
         assert!(valid.iter().all(|&mm| (300..=10_000).contains(&mm)));
+    }
+
+    #[test]
+    fn edge_sides_follow_the_rule_on_every_pixel() {
+        // The rule as written (the model's docs, step 3), one neighbour at a time, on
+        // images of steps, slopes, no-return pixels (0, NaN, ∞, negative) and ties.
+        let reference = |truth: &[f32], w: usize, h: usize, u: usize, v: usize, thr: f64| {
+            let valid = |z: f32| z.is_finite() && z > 0.0;
+            let z = truth[v * w + u];
+            let zf = f64::from(z);
+            let (mut far, mut near) = (false, false);
+            for vv in v.saturating_sub(1)..(v + 2).min(h) {
+                for uu in u.saturating_sub(1)..(u + 2).min(w) {
+                    let zq = truth[vv * w + uu];
+                    if !valid(zq) {
+                        near = true;
+                    } else if z - zq > (thr * zf) as f32 {
+                        far = true;
+                    } else if zq - z > (thr * f64::from(zq)) as f32 {
+                        near = true;
+                    }
+                }
+            }
+            (far, near)
+        };
+        let mut rng = stream(5, "test.edges");
+        let mut checked = 0;
+        for (w, h) in [(1, 1), (1, 7), (7, 1), (2, 2), (13, 9), (64, 48)] {
+            for thr in [0.0, 0.05, 0.3] {
+                let truth: Vec<f32> = (0..w * h)
+                    .map(|_| match rng.random_range(0..12) {
+                        0 => 0.0,
+                        1 => f32::NAN,
+                        2 => f32::INFINITY,
+                        3 => -1.0,
+                        4 => 2.0,
+                        5 => 2.1,
+                        _ => rng.random_range(0.3f32..6.0),
+                    })
+                    .collect();
+                let mut keys = vec![[0.0; 2]; w * h];
+                edge_keys(&truth, w, thr, &mut keys);
+                for v in 0..h {
+                    for u in 0..w {
+                        let z = truth[v * w + u];
+                        if !(z.is_finite() && z > 0.0) {
+                            continue;
+                        }
+                        let (far, near) = reference(&truth, w, h, u, v, thr);
+                        let tz = (thr * f64::from(z)) as f32;
+                        let (got_far, got_near) = edge_sides(&keys, w, h, u, v, tz);
+                        assert_eq!(got_far, far, "far side at ({u}, {v}), {w}×{h}, thr {thr}");
+                        if !far {
+                            assert_eq!(got_near, near, "near side at ({u}, {v}), {w}×{h}");
+                        }
+                        checked += 1;
+                    }
+                }
+            }
+        }
+        assert!(checked > 5000, "{checked} pixels checked");
+    }
+
+    #[test]
+    fn box_filter_sums_each_window_as_one_sum_does() {
+        // A second method: each output's window summed on its own (`Iterator::sum`),
+        // borders clipped, divided by the square root of the window's size.
+        let mut rng = stream(6, "test.box");
+        for (w, h) in [(1, 1), (1, 5), (5, 1), (3, 4), (17, 11), (64, 9)] {
+            let src: Vec<f32> = (0..w * h)
+                .map(|i| {
+                    if i % 7 == 3 {
+                        -0.0
+                    } else {
+                        rng.random_range(-3.0f32..3.0)
+                    }
+                })
+                .collect();
+            for r in [0, 1, 2, 5] {
+                for horizontal in [true, false] {
+                    let mut got = vec![f32::NAN; w * h];
+                    box_unit_variance(&src, &mut got, w, h, r, horizontal);
+                    for v in 0..h {
+                        for u in 0..w {
+                            let (sum, count) = if horizontal {
+                                let (lo, hi) = (u.saturating_sub(r), (u + r + 1).min(w));
+                                (src[v * w + lo..v * w + hi].iter().sum::<f32>(), hi - lo)
+                            } else {
+                                let (lo, hi) = (v.saturating_sub(r), (v + r + 1).min(h));
+                                ((lo..hi).map(|vv| src[vv * w + u]).sum::<f32>(), hi - lo)
+                            };
+                            let want = sum / (count as f32).sqrt();
+                            assert_eq!(
+                                got[v * w + u].to_bits(),
+                                want.to_bits(),
+                                "({u}, {v}) of {w}×{h}, r {r}, horizontal {horizontal}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
     }
 
     #[test]
