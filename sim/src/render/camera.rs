@@ -1140,7 +1140,7 @@ impl StereoDepthNoise {
                         }
                     }
                     // Edges in the 3×3 neighbourhood.
-                    let (far_side, near_side) = edge_sides(keys, w, h, u, v, (thr * zf) as f32);
+                    let (far_side, near_side) = edge_sides(keys, w, h, u, v);
                     if far_side || (near_side && (dropout.bits(i as u64) >> 32) < dropout_below) {
                         continue;
                     }
@@ -1189,17 +1189,17 @@ fn edge_keys(truth_m: &[f32], w: usize, thr: f64, keys: &mut [[f32; 2]]) {
         });
 }
 
-/// The edge step of [`StereoDepthNoise`] at pixel `(u, v)` (valid depth `z`, `tz` =
-/// `thr·z` as `f32`), on [`edge_keys`]: whether its 3×3 neighbourhood holds a nearer
-/// surface by more than `tz` (far side of a discontinuity), and whether it holds a
+/// The edge step of [`StereoDepthNoise`] at pixel `(u, v)` (a valid depth `z`), on
+/// [`edge_keys`]: whether its 3×3 neighbourhood holds a nearer surface by more than
+/// `thr·z` (far side of a discontinuity), and whether it holds a
 /// farther surface by more than `thr` of that one's depth or a no-return pixel (near
 /// side). NaN keys compare false, so a no-return neighbour counts only as near. Where
 /// the far side holds, the near side is not needed (the pixel is dropped either way) and
 /// may be either.
 #[inline(always)]
-fn edge_sides(keys: &[[f32; 2]], w: usize, h: usize, u: usize, v: usize, tz: f32) -> (bool, bool) {
+fn edge_sides(keys: &[[f32; 2]], w: usize, h: usize, u: usize, v: usize) -> (bool, bool) {
     let i = v * w + u;
-    let z = keys[i][0];
+    let [z, tz] = keys[i];
     let (mut far, mut near) = (false, false);
     let mut look = |j: usize| {
         let [zq, tq] = keys[j];
@@ -2005,8 +2005,7 @@ mod tests {
                             continue;
                         }
                         let (far, near) = reference(&truth, w, h, u, v, thr);
-                        let tz = (thr * f64::from(z)) as f32;
-                        let (got_far, got_near) = edge_sides(&keys, w, h, u, v, tz);
+                        let (got_far, got_near) = edge_sides(&keys, w, h, u, v);
                         assert_eq!(got_far, far, "far side at ({u}, {v}), {w}×{h}, thr {thr}");
                         if !far {
                             assert_eq!(got_near, near, "near side at ({u}, {v}), {w}×{h}");
