@@ -936,7 +936,7 @@ pub struct DepthScratch {
     noise: Vec<f32>,
     tmp: Vec<f32>,
     suffix_min: Vec<f64>,
-    /// Per pixel: the true depth if valid (else NaN) and its near-side edge threshold.
+    /// Per pixel: the true depth if valid (else NaN) and its edge threshold `thr·z`.
     edge_keys: Vec<[f32; 2]>,
 }
 
@@ -1172,9 +1172,10 @@ impl StereoDepthNoise {
     }
 }
 
-/// Each pixel's depth (NaN where it is no return: 0, negative or not finite) and the
-/// threshold `thr·z` against which a farther neighbour is compared, computed once per
-/// pixel for [`edge_sides`] (rows in parallel).
+/// Each pixel's depth (NaN where it is no return: 0, negative or not finite) and its
+/// edge threshold `thr·z` (a nearer neighbour must be nearer by more than the pixel's
+/// own; a farther one farther by more than that neighbour's), computed once per pixel
+/// for [`edge_sides`] (rows in parallel).
 fn edge_keys(truth_m: &[f32], w: usize, thr: f64, keys: &mut [[f32; 2]]) {
     keys.par_chunks_mut(w)
         .zip(truth_m.par_chunks(w))
