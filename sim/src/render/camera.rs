@@ -1101,7 +1101,6 @@ impl StereoDepthNoise {
         let fb = self.focal_px * self.baseline_m;
         let thr = self.edge_threshold;
         let dropout_below = (self.edge_dropout.clamp(0.0, 1.0) * 4_294_967_296.0) as u64;
-        let valid = |z: f32| z.is_finite() && z > 0.0;
         scratch.edge_keys.resize(n, [0.0; 2]);
         edge_keys(truth_m, w, thr, &mut scratch.edge_keys);
         let keys = &scratch.edge_keys;
@@ -1119,7 +1118,7 @@ impl StereoDepthNoise {
                     for u in (0..w).rev() {
                         suffix_min[u] = m;
                         let z = row[u];
-                        if valid(z) {
+                        if is_return(z) {
                             m = m.min(u as f64 - fb / f64::from(z));
                         }
                     }
@@ -1128,7 +1127,7 @@ impl StereoDepthNoise {
                     let i = v * w + u;
                     let z = row[u];
                     out_row[u] = 0;
-                    if !valid(z) {
+                    if !is_return(z) {
                         continue;
                     }
                     let zf = f64::from(z);
@@ -1172,6 +1171,12 @@ impl StereoDepthNoise {
     }
 }
 
+/// Whether a true depth is a return: positive and finite (0, NaN and ∞ are none).
+#[inline(always)]
+fn is_return(z: f32) -> bool {
+    z.is_finite() && z > 0.0
+}
+
 /// Each pixel's depth (NaN where it is no return: 0, negative or not finite) and its
 /// edge threshold `thr·z` (a nearer neighbour must be nearer by more than the pixel's
 /// own; a farther one farther by more than that neighbour's), computed once per pixel
@@ -1181,7 +1186,7 @@ fn edge_keys(truth_m: &[f32], w: usize, thr: f64, keys: &mut [[f32; 2]]) {
         .zip(truth_m.par_chunks(w))
         .for_each(|(keys, row)| {
             for (k, &z) in keys.iter_mut().zip(row) {
-                *k = if z.is_finite() && z > 0.0 {
+                *k = if is_return(z) {
                     [z, (thr * f64::from(z)) as f32]
                 } else {
                     [f32::NAN, 0.0]
@@ -1259,7 +1264,7 @@ fn box_unit_variance(src: &[f32], dst: &mut [f32], w: usize, h: usize, r: usize,
                     *o += x;
                 }
             }
-            let inner = divisor((2 * r + 1).min(w));
+            let inner = divisor(2 * r + 1);
             for (u, o) in out.iter_mut().enumerate() {
                 let (lo, hi) = (u.saturating_sub(r), (u + r + 1).min(w));
                 let d = if hi - lo == 2 * r + 1 {
@@ -2002,7 +2007,7 @@ mod tests {
                 for v in 0..h {
                     for u in 0..w {
                         let z = truth[v * w + u];
-                        if !(z.is_finite() && z > 0.0) {
+                        if !is_return(z) {
                             continue;
                         }
                         let (far, near) = reference(&truth, w, h, u, v, thr);
