@@ -29,7 +29,7 @@
 //! the seam closes; where a noisy neighbourhood (foliage) makes the front's order matter,
 //! a seam may keep a few open or doubled edges.
 
-use super::grid::{PointGrid, dist2};
+use super::grid::{Near, PointGrid, dist2};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 use std::collections::VecDeque;
@@ -43,6 +43,10 @@ const SEED_NEIGHBOURS: usize = 12;
 /// for [`Bpa::ball_is_empty_near`] to answer: far above the rounding of the centre, well
 /// below the 5e-10 of [`EMPTY_BALL_TOLERANCE`].
 const CENTRE_SLACK: f64 = 1e-10;
+/// How far (relative to ρ) [`Bpa::ball_is_empty`] widens the ball's bounding box: a point
+/// strictly inside lies more than 5e-10 ρ ([`EMPTY_BALL_TOLERANCE`]) within it, far more
+/// than the rounding of a coordinate, so the box holds every such point.
+const BOX_SLACK: f64 = 1e-6;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum EdgeState {
@@ -275,8 +279,15 @@ impl Bpa<'_> {
     }
 
     /// Whether no point other than `skip` lies strictly inside the ball.
+    ///
+    /// A point inside is within ρ of the centre on every axis, so only the cells that
+    /// meet the ball's bounding box (widened by [`BOX_SLACK`] against rounding) can hold
+    /// one: with cells of 2ρ, 8 of them where the 27 around the centre would be searched
+    /// otherwise.
     fn ball_is_empty(&self, grid: &PointGrid, center: &[f64; 3], rho: f64, skip: [u32; 3]) -> bool {
-        !grid.any_near(center, |q, pq| Self::inside(q, pq, center, rho, skip))
+        let r = rho * (1.0 + BOX_SLACK);
+        let (lo, hi) = (center.map(|c| c - r), center.map(|c| c + r));
+        !grid.any_in_box(&lo, &hi, |q, pq| Self::inside(q, pq, center, rho, skip))
     }
 
     /// [`Bpa::ball_is_empty`] for a ball through `pv`, looking only at `near` (every
@@ -286,7 +297,7 @@ impl Bpa<'_> {
     /// centre farther than that takes the grid, so the answer is the same either way.
     fn ball_is_empty_near(
         &self,
-        near: &[(u32, [f64; 3])],
+        near: &Near,
         pv: &[f64; 3],
         grid: &PointGrid,
         center: &[f64; 3],
@@ -298,8 +309,10 @@ impl Bpa<'_> {
             return self.ball_is_empty(grid, center, rho, skip);
         }
         !near
+            .indices()
             .iter()
-            .any(|(q, pq)| Self::inside(*q, pq, center, rho, skip))
+            .zip(near.positions())
+            .any(|(&q, pq)| Self::inside(q, pq, center, rho, skip))
     }
 
     /// Tries to start a new triangle at unused vertex `v`.
@@ -311,7 +324,7 @@ impl Bpa<'_> {
         v: u32,
         grid: &PointGrid,
         rho: f64,
-        near: &mut Vec<(u32, [f64; 3])>,
+        near: &mut Near,
         scratch: &mut Vec<u32>,
     ) -> bool {
         let pv = self.p[v as usize];
@@ -319,8 +332,9 @@ impl Bpa<'_> {
         grid.within(&pv, 2.0 * rho, near);
         scratch.clear();
         scratch.extend(
-            near.iter()
-                .map(|&(q, _)| q)
+            near.indices()
+                .iter()
+                .copied()
                 .filter(|&q| q != v && !self.used[q as usize]),
         );
         let nearer = |a: &u32, b: &u32| {
@@ -422,7 +436,7 @@ pub fn ball_pivoting(
         .par_iter()
         .map(|r| PointGrid::new(&points[..n], 2.0 * r))
         .collect();
-    let (mut near, mut scratch) = (Vec::new(), Vec::new());
+    let (mut near, mut scratch) = (Near::default(), Vec::new());
     for (pass, (&rho, grid)) in radii.iter().zip(&grids).enumerate() {
         if pass > 0 {
             bpa.reactivate(grid, rho);

@@ -97,28 +97,65 @@ impl PointGrid {
     /// (stops at the first that does).
     #[inline]
     pub fn any_near(&self, q: &[f64; 3], mut pred: impl FnMut(u32, &[f64; 3]) -> bool) -> bool {
+        self.any_run_near(q, |idx, pos| idx.iter().zip(pos).any(|(&i, p)| pred(i, p)))
+    }
+
+    /// Whether `pred(indices, positions)` holds for any of the runs of points (up to
+    /// nine, one per column of three cells) that make the 27 cells around `q`.
+    #[inline]
+    fn any_run_near(&self, q: &[f64; 3], pred: impl FnMut(&[u32], &[[f64; 3]]) -> bool) -> bool {
         let Some(c) = index(q, self.inv_cell) else {
             return false;
         };
-        let z = c[2] as i32;
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                let col = VoxelGrid::key_of_index([c[0] + dx, c[1] + dy, 0]) >> AXIS_BITS;
+        self.any_run_in(c.map(|x| x - 1), c.map(|x| x + 1), pred)
+    }
+
+    /// Whether `pred(index, position)` holds for any point in the cells that meet the
+    /// box from `lo` to `hi` (stops at the first that does). Where a corner has no cell
+    /// (beyond the grid's range), the 27 cells around the box's centre are searched as
+    /// [`PointGrid::any_near`] does.
+    #[inline]
+    pub fn any_in_box(
+        &self,
+        lo: &[f64; 3],
+        hi: &[f64; 3],
+        mut pred: impl FnMut(u32, &[f64; 3]) -> bool,
+    ) -> bool {
+        let pred_run =
+            |idx: &[u32], pos: &[[f64; 3]]| idx.iter().zip(pos).any(|(&i, p)| pred(i, p));
+        match (index(lo, self.inv_cell), index(hi, self.inv_cell)) {
+            (Some(a), Some(b)) => self.any_run_in(a, b, pred_run),
+            _ => {
+                let mid = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+                self.any_run_near(&mid, pred_run)
+            }
+        }
+    }
+
+    /// Whether `pred(indices, positions)` holds for any run of points of the cells from
+    /// `lo` to `hi` (cell indices, inclusive): one run per column.
+    #[inline]
+    fn any_run_in(
+        &self,
+        lo: [i64; 3],
+        hi: [i64; 3],
+        mut pred: impl FnMut(&[u32], &[[f64; 3]]) -> bool,
+    ) -> bool {
+        let (z0, z1) = (lo[2] as i32, hi[2] as i32);
+        for x in lo[0]..=hi[0] {
+            for y in lo[1]..=hi[1] {
+                let col = VoxelGrid::key_of_index([x, y, 0]) >> AXIS_BITS;
                 let Some(&(a, b)) = self.columns.get(&col) else {
                     continue;
                 };
                 let zs = &self.cell_z[a as usize..b as usize];
-                let lo = a as usize + zs.partition_point(|&cz| cz < z - 1);
-                let hi = a as usize + zs.partition_point(|&cz| cz <= z + 1);
-                if lo == hi {
+                let from = a as usize + zs.partition_point(|&cz| cz < z0);
+                let to = a as usize + zs.partition_point(|&cz| cz <= z1);
+                if from == to {
                     continue;
                 }
-                let run = self.cell_start[lo] as usize..self.cell_start[hi] as usize;
-                if self.sorted[run.clone()]
-                    .iter()
-                    .zip(&self.pos[run])
-                    .any(|(&i, p)| pred(i, p))
-                {
+                let run = self.cell_start[from] as usize..self.cell_start[to] as usize;
+                if pred(&self.sorted[run.clone()], &self.pos[run]) {
                     return true;
                 }
             }
@@ -126,15 +163,56 @@ impl PointGrid {
         false
     }
 
-    /// The points within `radius` (≤ `cell_m`) of `q`, appended to `out` as (index,
-    /// position).
-    pub fn within(&self, q: &[f64; 3], radius: f64, out: &mut Vec<(u32, [f64; 3])>) {
+    /// The points within `radius` (≤ `cell_m`) of `q`, appended to `out` in the order
+    /// of the grid.
+    pub fn within(&self, q: &[f64; 3], radius: f64, out: &mut Near) {
         let r2 = radius * radius;
-        self.for_each_near(q, |i, p| {
-            if dist2(p, q) <= r2 {
-                out.push((i, *p));
+        self.any_run_near(q, |idx, pos| {
+            let (from, to) = (out.len, out.len + idx.len());
+            if out.idx.len() < to {
+                let grown = to.max(2 * out.idx.len());
+                out.idx.resize(grown, 0);
+                out.pos.resize(grown, [0.0; 3]);
             }
+            // Every point is written and the end advances over those within: about a
+            // third of them are, so a branch on it would often be mispredicted.
+            let (oi, op) = (&mut out.idx[from..to], &mut out.pos[from..to]);
+            let mut n = 0;
+            for (&i, p) in idx.iter().zip(pos) {
+                oi[n] = i;
+                op[n] = *p;
+                n += usize::from(dist2(p, q) <= r2);
+            }
+            out.len += n;
+            false
         });
+    }
+}
+
+/// Points found near a query ([`PointGrid::within`]): their indices and positions, side
+/// by side. The buffers only grow, so a query writes every point it looks at and keeps
+/// those within without a branch.
+#[derive(Clone, Debug, Default)]
+pub struct Near {
+    idx: Vec<u32>,
+    pos: Vec<[f64; 3]>,
+    len: usize,
+}
+
+impl Near {
+    /// Forgets the points (keeps the buffers).
+    pub fn clear(&mut self) {
+        self.len = 0;
+    }
+
+    /// The points' indices.
+    pub fn indices(&self) -> &[u32] {
+        &self.idx[..self.len]
+    }
+
+    /// The points' positions, in the order of [`Near::indices`].
+    pub fn positions(&self) -> &[[f64; 3]] {
+        &self.pos[..self.len]
     }
 }
 
@@ -169,6 +247,67 @@ mod tests {
     use super::*;
 
     #[test]
+    fn any_in_box_visits_every_point_of_the_box_and_only_the_cells_it_meets() {
+        // A second method: every point tested against the box; the cells visited
+        // computed from each visited point's coordinates.
+        let mut state: u64 = 0x2545_F491_4F6C_DD1D;
+        let mut next = || crate::mapper::test_rng::next_unit(&mut state);
+        let pts: Vec<[f64; 3]> = (0..20_000)
+            .map(|_| [next() * 0.3 - 0.1, next() * 0.2 - 0.15, next() * 0.6 - 0.3])
+            .collect();
+        let cell = 0.02;
+        let grid = PointGrid::new(&pts, cell);
+        let boxes: Vec<([f64; 3], f64)> = (0..3000)
+            .map(|i| {
+                let c = pts[i * 5];
+                // Half-widths up to a cell, centres on points and on cell faces.
+                let c = if i % 7 == 0 {
+                    c.map(|x| (x / cell).round() * cell)
+                } else {
+                    c
+                };
+                (c, next() * cell)
+            })
+            .collect();
+        for (c, h) in boxes {
+            let (lo, hi) = (c.map(|x| x - h), c.map(|x| x + h));
+            let mut seen = Vec::new();
+            grid.any_in_box(&lo, &hi, |i, p| {
+                assert_eq!(*p, pts[i as usize]);
+                seen.push(i);
+                false
+            });
+            seen.sort_unstable();
+            assert!(
+                seen.windows(2).all(|w| w[0] < w[1]),
+                "a point visited twice"
+            );
+            let cells = |p: &[f64; 3]| p.map(|x| (x / cell).floor() as i64);
+            let (clo, chi) = (cells(&lo), cells(&hi));
+            for i in 0..pts.len() as u32 {
+                let p = &pts[i as usize];
+                let in_box = (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k]);
+                let in_cells = (0..3).all(|k| (clo[k]..=chi[k]).contains(&cells(p)[k]));
+                let visited = seen.binary_search(&i).is_ok();
+                assert!(!in_box || visited, "point {i} in the box was not visited");
+                assert_eq!(
+                    visited, in_cells,
+                    "point {i}: visited iff its cell meets the box"
+                );
+            }
+        }
+        // A corner beyond the grid's keys: the 27 cells around the centre, as any_near.
+        let mut a = Vec::new();
+        grid.any_in_box(&[-1e9, -0.005, -0.005], &[1e9, 0.005, 0.005], |i, _| {
+            a.push(i);
+            false
+        });
+        let mut b = Vec::new();
+        grid.for_each_near(&[0.0; 3], |i, _| b.push(i));
+        assert_eq!(a, b);
+    }
+
+    #[test]
     fn within_finds_exactly_the_points_a_scan_finds() {
         // A second method: every point tested. Clustered points (many per cell, tall
         // columns), points on cell faces, negative coordinates, a NaN left out.
@@ -187,12 +326,18 @@ mod tests {
             .chain(&[[0.04, -0.04, 0.1], [5.0, 5.0, 5.0]])
         {
             for radius in [cell, 0.7 * cell] {
-                let mut got = Vec::new();
-                grid.within(q, radius, &mut got);
-                let mut got: Vec<u32> = got
+                let mut near = Near::default();
+                // Left-overs of an earlier query must not show.
+                grid.within(&[0.0; 3], cell, &mut near);
+                near.clear();
+                grid.within(q, radius, &mut near);
+                assert_eq!(near.indices().len(), near.positions().len());
+                let mut got: Vec<u32> = near
+                    .indices()
                     .iter()
-                    .map(|&(i, p)| {
-                        assert_eq!(p, pts[i as usize]);
+                    .zip(near.positions())
+                    .map(|(&i, p)| {
+                        assert_eq!(*p, pts[i as usize]);
                         i
                     })
                     .collect();
