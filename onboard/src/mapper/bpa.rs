@@ -90,6 +90,8 @@ struct Bpa<'a> {
     queue: VecDeque<u32>,
     triangles: Vec<[u32; 3]>,
     stats: BpaStats,
+    /// The points a pivot looks at (a buffer).
+    near: Near,
 }
 
 #[inline]
@@ -226,21 +228,20 @@ impl Bpa<'_> {
         ];
         let axis = sub(pt, ps);
         let u0 = sub(&e.center, &m);
-        let reach2 = 4.0 * rho * rho;
         let mut best: Option<(f64, u32, [f64; 3])> = None;
-        grid.for_each_near(&m, |k, pk| {
+        let mut near = std::mem::take(&mut self.near);
+        near.clear();
+        grid.within(&m, 2.0 * rho, &mut near);
+        for (&k, pk) in near.indices().iter().zip(near.positions()) {
             if k == e.s || k == e.t || k == e.o {
-                return;
-            }
-            if dist2(pk, &m) > reach2 {
-                return;
+                continue;
             }
             // The new triangle (t, s, k) shares the edge reversed.
             let Some((c, nrm)) = ball_center(pt, ps, pk, rho) else {
-                return;
+                continue;
             };
             if !self.normals_agree(&nrm, [e.s, e.t, k]) {
-                return;
+                continue;
             }
             let u1 = sub(&c, &m);
             let mut angle = dot(&axis, &cross(&u0, &u1)).atan2(dot(&u0, &u1));
@@ -250,7 +251,8 @@ impl Bpa<'_> {
             if best.is_none_or(|(a, bk, _)| angle < a || (angle == a && k < bk)) {
                 best = Some((angle, k, c));
             }
-        });
+        }
+        self.near = near;
         // A vertex already in the mesh may only close the front locally: it must share a
         // front edge with `s` or `t`. Joining a distant part of the front would pinch the
         // surface at that vertex (not manifold) and, in noisy volumetric clouds such as
@@ -430,6 +432,7 @@ pub fn ball_pivoting(
         queue: VecDeque::new(),
         triangles: Vec::new(),
         stats: BpaStats::default(),
+        near: Near::default(),
     };
     // The grids of all radii are independent: build them in parallel.
     let grids: Vec<PointGrid> = radii

@@ -83,23 +83,6 @@ impl PointGrid {
         self.cell_m
     }
 
-    /// Calls `f(index, position)` for every point in the 27 cells around `q` (a superset
-    /// of the points within `cell_m` of `q`).
-    #[inline]
-    pub fn for_each_near(&self, q: &[f64; 3], mut f: impl FnMut(u32, &[f64; 3])) {
-        self.any_near(q, |i, p| {
-            f(i, p);
-            false
-        });
-    }
-
-    /// Whether `pred(index, position)` holds for any point in the 27 cells around `q`
-    /// (stops at the first that does).
-    #[inline]
-    pub fn any_near(&self, q: &[f64; 3], mut pred: impl FnMut(u32, &[f64; 3]) -> bool) -> bool {
-        self.any_run_near(q, |idx, pos| idx.iter().zip(pos).any(|(&i, p)| pred(i, p)))
-    }
-
     /// Whether `pred(indices, positions)` holds for any of the runs of points (up to
     /// nine, one per column of three cells) that make the 27 cells around `q`.
     #[inline]
@@ -112,8 +95,8 @@ impl PointGrid {
 
     /// Whether `pred(index, position)` holds for any point in the cells that meet the
     /// box from `lo` to `hi` (stops at the first that does). Where a corner has no cell
-    /// (beyond the grid's range), the 27 cells around the box's centre are searched as
-    /// [`PointGrid::any_near`] does.
+    /// (beyond the grid's range), the 27 cells around the box's centre are searched
+    /// (none if the centre has no cell either).
     #[inline]
     pub fn any_in_box(
         &self,
@@ -257,6 +240,8 @@ mod tests {
             .collect();
         let cell = 0.02;
         let grid = PointGrid::new(&pts, cell);
+        // As the grid keys them: times the inverse cell, floored.
+        let cells = |p: &[f64; 3]| p.map(|x| (x * (1.0 / cell)).floor() as i64);
         let boxes: Vec<([f64; 3], f64)> = (0..3000)
             .map(|i| {
                 let c = pts[i * 5];
@@ -282,7 +267,6 @@ mod tests {
                 seen.windows(2).all(|w| w[0] < w[1]),
                 "a point visited twice"
             );
-            let cells = |p: &[f64; 3]| p.map(|x| (x / cell).floor() as i64);
             let (clo, chi) = (cells(&lo), cells(&hi));
             for i in 0..pts.len() as u32 {
                 let p = &pts[i as usize];
@@ -296,14 +280,17 @@ mod tests {
                 );
             }
         }
-        // A corner beyond the grid's keys: the 27 cells around the centre, as any_near.
+        // A corner beyond the grid's keys: the 27 cells around the centre.
         let mut a = Vec::new();
         grid.any_in_box(&[-1e9, -0.005, -0.005], &[1e9, 0.005, 0.005], |i, _| {
             a.push(i);
             false
         });
-        let mut b = Vec::new();
-        grid.for_each_near(&[0.0; 3], |i, _| b.push(i));
+        a.sort_unstable();
+        let b: Vec<u32> = (0..pts.len() as u32)
+            .filter(|&i| cells(&pts[i as usize]).iter().all(|c| (-1..=1).contains(c)))
+            .collect();
+        assert!(!b.is_empty());
         assert_eq!(a, b);
     }
 
