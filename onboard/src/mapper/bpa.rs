@@ -90,8 +90,6 @@ struct Bpa<'a> {
     queue: VecDeque<u32>,
     triangles: Vec<[u32; 3]>,
     stats: BpaStats,
-    /// The points a pivot looks at (a buffer).
-    near: Near,
 }
 
 #[inline]
@@ -217,8 +215,8 @@ impl Bpa<'_> {
     }
 
     /// Pivots the ball about front edge `id`; adds the triangle or marks the edge
-    /// boundary.
-    fn pivot(&mut self, id: u32, grid: &PointGrid, rho: f64) {
+    /// boundary. `near` is a buffer.
+    fn pivot(&mut self, id: u32, grid: &PointGrid, rho: f64, near: &mut Near) {
         let e = self.edges[id as usize];
         let (ps, pt) = (&self.p[e.s as usize], &self.p[e.t as usize]);
         let m = [
@@ -229,9 +227,8 @@ impl Bpa<'_> {
         let axis = sub(pt, ps);
         let u0 = sub(&e.center, &m);
         let mut best: Option<(f64, u32, [f64; 3])> = None;
-        let mut near = std::mem::take(&mut self.near);
         near.clear();
-        grid.within(&m, 2.0 * rho, &mut near);
+        grid.within(&m, 2.0 * rho, near);
         for (&k, pk) in near.indices().iter().zip(near.positions()) {
             if k == e.s || k == e.t || k == e.o {
                 continue;
@@ -252,7 +249,6 @@ impl Bpa<'_> {
                 best = Some((angle, k, c));
             }
         }
-        self.near = near;
         // A vertex already in the mesh may only close the front locally: it must share a
         // front edge with `s` or `t`. Joining a distant part of the front would pinch the
         // surface at that vertex (not manifold) and, in noisy volumetric clouds such as
@@ -284,8 +280,8 @@ impl Bpa<'_> {
     ///
     /// A point inside is within ρ of the centre on every axis, so only the cells that
     /// meet the ball's bounding box (widened by [`BOX_SLACK`] against rounding) can hold
-    /// one: with cells of 2ρ, 8 of them where the 27 around the centre would be searched
-    /// otherwise.
+    /// one: with cells of 2ρ, usually 8 of them, where the 27 around the centre were
+    /// searched before.
     fn ball_is_empty(&self, grid: &PointGrid, center: &[f64; 3], rho: f64, skip: [u32; 3]) -> bool {
         let r = rho * (1.0 + BOX_SLACK);
         let (lo, hi) = (center.map(|c| c - r), center.map(|c| c + r));
@@ -379,10 +375,10 @@ impl Bpa<'_> {
         false
     }
 
-    fn expand(&mut self, grid: &PointGrid, rho: f64) {
+    fn expand(&mut self, grid: &PointGrid, rho: f64, near: &mut Near) {
         while let Some(id) = self.queue.pop_front() {
             if self.edges[id as usize].state == EdgeState::Active {
-                self.pivot(id, grid, rho);
+                self.pivot(id, grid, rho, near);
             }
         }
     }
@@ -432,7 +428,6 @@ pub fn ball_pivoting(
         queue: VecDeque::new(),
         triangles: Vec::new(),
         stats: BpaStats::default(),
-        near: Near::default(),
     };
     // The grids of all radii are independent: build them in parallel.
     let grids: Vec<PointGrid> = radii
@@ -443,14 +438,14 @@ pub fn ball_pivoting(
     for (pass, (&rho, grid)) in radii.iter().zip(&grids).enumerate() {
         if pass > 0 {
             bpa.reactivate(grid, rho);
-            bpa.expand(grid, rho);
+            bpa.expand(grid, rho, &mut near);
         }
         for v in 0..n as u32 {
             if bpa.used[v as usize] {
                 continue;
             }
             if bpa.seed(v, grid, rho, &mut near, &mut scratch) {
-                bpa.expand(grid, rho);
+                bpa.expand(grid, rho, &mut near);
             }
         }
     }

@@ -96,7 +96,8 @@ impl PointGrid {
     /// Whether `pred(index, position)` holds for any point in the cells that meet the
     /// box from `lo` to `hi` (stops at the first that does). Where a corner has no cell
     /// (beyond the grid's range), the 27 cells around the box's centre are searched
-    /// (none if the centre has no cell either).
+    /// (none if the centre has no cell either). Meant for boxes a few cells wide: every
+    /// column the box meets is looked up.
     #[inline]
     pub fn any_in_box(
         &self,
