@@ -229,7 +229,7 @@ impl Bpa<'_> {
         let mut best: Option<(f64, u32, [f64; 3])> = None;
         near.clear();
         grid.within(&m, 2.0 * rho, near);
-        for (&k, pk) in near.indices().iter().zip(near.positions()) {
+        for (k, pk) in near.iter() {
             if k == e.s || k == e.t || k == e.o {
                 continue;
             }
@@ -307,10 +307,8 @@ impl Bpa<'_> {
             return self.ball_is_empty(grid, center, rho, skip);
         }
         !near
-            .indices()
             .iter()
-            .zip(near.positions())
-            .any(|(&q, pq)| Self::inside(q, pq, center, rho, skip))
+            .any(|(q, pq)| Self::inside(q, pq, center, rho, skip))
     }
 
     /// Tries to start a new triangle at unused vertex `v`.

@@ -198,6 +198,11 @@ impl Near {
     pub fn positions(&self) -> &[[f64; 3]] {
         &self.pos[..self.len]
     }
+
+    /// The points as (index, position).
+    pub fn iter(&self) -> impl Iterator<Item = (u32, &[f64; 3])> {
+        self.indices().iter().copied().zip(self.positions())
+    }
 }
 
 #[inline]
@@ -321,10 +326,8 @@ mod tests {
                 grid.within(q, radius, &mut near);
                 assert_eq!(near.indices().len(), near.positions().len());
                 let mut got: Vec<u32> = near
-                    .indices()
                     .iter()
-                    .zip(near.positions())
-                    .map(|(&i, p)| {
+                    .map(|(i, p)| {
                         assert_eq!(*p, pts[i as usize]);
                         i
                     })
