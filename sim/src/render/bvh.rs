@@ -948,11 +948,12 @@ pub(crate) fn eval_tri(v: &[[f32; 3]; 3], o: [f32; 3], d: [f32; 3]) -> Option<(f
     let (a, b, c) = (sub3(v[0], o), sub3(v[1], o), sub3(v[2], o));
     let (n, err) = edge_normals(a, b, c);
     let mut w = [dot(d, n[0]), dot(d, n[1]), dot(d, n[2])];
-    let min_abs = w[0].abs().min(w[1].abs()).min(w[2].abs());
-    if min_abs.partial_cmp(&(err * norm_inf(d))) != Some(std::cmp::Ordering::Greater) {
-        let edges = [(b, c), (c, a), (a, b)];
-        for (wi, (x, y)) in w.iter_mut().zip(edges) {
-            *wi = fix_sign(*wi, orient_exact(d, x, y));
+    let bound = err * norm_inf(d);
+    let edges = [(b, c), (c, a), (a, b)];
+    for (wi, (x, y)) in w.iter_mut().zip(edges) {
+        // Beyond its rounding bound an edge function's sign is already the exact one.
+        if wi.abs().partial_cmp(&bound) != Some(std::cmp::Ordering::Greater) {
+            *wi = exact_sign(*wi, d, x, y);
         }
     }
     let inside =
@@ -965,6 +966,28 @@ pub(crate) fn eval_tri(v: &[[f32; 3]; 3], o: [f32; 3], d: [f32; 3]) -> Option<(f
     }
     let inv = 1.0 / sum;
     Some((dot(nrm, a) / den, w[1] * inv, w[2] * inv))
+}
+
+/// `fix_sign(w, orient_exact(d, x, y))`: `w` if its sign is that of `det(d, x, y)`, else
+/// the exact value rounded. The sign is first taken from a plain `f64` evaluation where
+/// that is beyond its rounding bound (products of two `f32` are exact in `f64`; the
+/// difference, the third factor and the sum round by at most `2⁻⁵³` each, so the
+/// computed value is within `4·2⁻⁵³·Σ|d_c|(|x_a y_b| + |x_b y_a|)` of the exact one and
+/// `2⁻⁵⁰` of that sum is a safe margin); only near zero, or where `w`'s sign is wrong and
+/// the value is needed, the floating-point expansion computes it.
+fn exact_sign(w: f32, d: [f32; 3], x: [f32; 3], y: [f32; 3]) -> f32 {
+    let (df, xf, yf) = (d.map(f64::from), x.map(f64::from), y.map(f64::from));
+    let (mut approx, mut size) = (0.0f64, 0.0f64);
+    for (c, a, b) in [(0, 1, 2), (1, 2, 0), (2, 0, 1)] {
+        let (p, q) = (xf[a] * yf[b], xf[b] * yf[a]);
+        approx += df[c] * (p - q);
+        size += df[c].abs() * (p.abs() + q.abs());
+    }
+    let sign = |v: f64| (v > 0.0) as i32 - (v < 0.0) as i32;
+    if approx.abs() > size * (1.0 / (1u64 << 50) as f64) && sign(approx) == sign(f64::from(w)) {
+        return w;
+    }
+    fix_sign(w, orient_exact(d, x, y))
 }
 
 /// `w` if its sign is right, else the exact value (rounded, never rounded to zero).
@@ -2532,6 +2555,65 @@ mod tests {
         assert_eq!(fix_sign(1e-9, -2.0), -2.0);
         assert_eq!(fix_sign(3.0, 2.5), 3.0);
         assert!(fix_sign(-1e-9, 1e-300) > 0.0);
+    }
+
+    /// The `f64` sign filter gives what the expansion gives, bit for bit, on random
+    /// orientations of every scale and on coplanar and nearly coplanar ones (where the
+    /// filter must give way), for the computed edge function, its negation and zero.
+    #[test]
+    fn sign_filter_answers_as_the_expansion_does() {
+        let mut s = 7u64;
+        let mut rnd = move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 40) as f32) / (1u64 << 23) as f32 - 1.0
+        };
+        let (mut filtered, mut expanded) = (0, 0);
+        for k in 0..20_000 {
+            let scale = [1.0 / 1024.0, 1.0, 128.0, 32768.0f32][k % 4];
+            let x: [f32; 3] = std::array::from_fn(|_| rnd() * scale);
+            let mut y: [f32; 3] = std::array::from_fn(|_| rnd() * scale);
+            let mut d: [f32; 3] = std::array::from_fn(|_| rnd());
+            match k % 3 {
+                // d along x or y (exactly coplanar), then moved by 0 to 4 ulps.
+                0 => {
+                    let from = if k % 2 == 0 { x } else { y };
+                    d = from.map(|v| v / scale);
+                    let i = k % 7 % 3;
+                    d[i] = f32::from_bits(d[i].to_bits().wrapping_add((k % 5) as u32));
+                }
+                // y nearly along x: a short edge seen almost end on.
+                1 => y = std::array::from_fn(|i| x[i] * 1.5 + rnd() * scale * 1e-6),
+                _ => {}
+            }
+            let w = dot(d, cross(x, sub3(y, x)));
+            for w in [w, -w, 0.0] {
+                let want = fix_sign(w, orient_exact(d, x, y));
+                assert_eq!(
+                    exact_sign(w, d, x, y).to_bits(),
+                    want.to_bits(),
+                    "{d:?} {x:?} {y:?} {w}"
+                );
+            }
+            let (df, xf, yf) = (d.map(f64::from), x.map(f64::from), y.map(f64::from));
+            let (mut approx, mut size) = (0.0f64, 0.0f64);
+            for (c, a, b) in [(0, 1, 2), (1, 2, 0), (2, 0, 1)] {
+                let (p, q) = (xf[a] * yf[b], xf[b] * yf[a]);
+                approx += df[c] * (p - q);
+                size += df[c].abs() * (p.abs() + q.abs());
+            }
+            if approx.abs() > size / (1u64 << 50) as f64 {
+                filtered += 1;
+            } else {
+                expanded += 1;
+            }
+        }
+        // Both paths were taken.
+        assert!(
+            filtered > 10_000 && expanded > 1_000,
+            "{filtered} {expanded}"
+        );
     }
 
     #[test]
