@@ -13,8 +13,9 @@
 //!   edge functions `det(d, B, C)`, `det(d, C, A)`, `det(d, A, B)` (equal signs: hit),
 //!   evaluated as `d·(B×(C - B))` etc., which stays accurate for small distant
 //!   triangles. Whenever one is within its rounding-error bound of zero its sign is
-//!   recomputed exactly (floating-point expansions), so the predicate is exact and rays
-//!   through shared edges and vertices of a closed mesh never leak. `t` comes from the
+//!   recomputed exactly (from plain `f64` where that is beyond its own bound, else
+//!   floating-point expansions), so the predicate is exact and rays through shared
+//!   edges and vertices of a closed mesh never leak. `t` comes from the
 //!   triangle's own normal, `t = N·A / N·d` with `N = (v1 - v0)×(v2 - v0)`, the
 //!   barycentrics from the edge functions (`w1/Σw`, `w2/Σw`). Ties in `t` go to the
 //!   smallest `(instance, triangle)`. Every path (packet, single ray, the brute-force
@@ -976,24 +977,37 @@ pub(crate) fn eval_tri(v: &[[f32; 3]; 3], o: [f32; 3], d: [f32; 3]) -> Option<(f
 /// `2⁻⁵⁰` of that sum is a safe margin); only near zero, or where `w`'s sign is wrong and
 /// the value is needed, the floating-point expansion computes it.
 fn exact_sign(w: f32, d: [f32; 3], x: [f32; 3], y: [f32; 3]) -> f32 {
-    let (df, xf, yf) = (d.map(f64::from), x.map(f64::from), y.map(f64::from));
-    let (mut approx, mut size) = (0.0f64, 0.0f64);
-    for (c, a, b) in [(0, 1, 2), (1, 2, 0), (2, 0, 1)] {
-        let (p, q) = (xf[a] * yf[b], xf[b] * yf[a]);
-        approx += df[c] * (p - q);
-        size += df[c].abs() * (p.abs() + q.abs());
-    }
-    let sign = |v: f64| (v > 0.0) as i32 - (v < 0.0) as i32;
-    if approx.abs() > size * (1.0 / (1u64 << 50) as f64) && sign(approx) == sign(f64::from(w)) {
+    let (approx, size) = orient_f64(d, x, y);
+    if approx.abs() > size * F64_SIGN_MARGIN && sign_of(approx) == sign_of(f64::from(w)) {
         return w;
     }
     fix_sign(w, orient_exact(d, x, y))
 }
 
+/// Relative margin beyond which [`orient_f64`]'s value has the exact sign.
+const F64_SIGN_MARGIN: f64 = 1.0 / (1u64 << 50) as f64;
+
+/// `d·(x×y)` in plain `f64`, and `Σ|d_c|(|x_a y_b| + |x_b y_a|)`, which bounds its
+/// rounding error (see [`exact_sign`]).
+fn orient_f64(d: [f32; 3], x: [f32; 3], y: [f32; 3]) -> (f64, f64) {
+    let (df, xf, yf) = (d.map(f64::from), x.map(f64::from), y.map(f64::from));
+    let (mut value, mut size) = (0.0f64, 0.0f64);
+    for (c, a, b) in [(0, 1, 2), (1, 2, 0), (2, 0, 1)] {
+        let (p, q) = (xf[a] * yf[b], xf[b] * yf[a]);
+        value += df[c] * (p - q);
+        size += df[c].abs() * (p.abs() + q.abs());
+    }
+    (value, size)
+}
+
+/// −1, 0 or 1 by the sign of `x` (0 for zeros and NaN).
+fn sign_of(x: f64) -> i32 {
+    (x > 0.0) as i32 - (x < 0.0) as i32
+}
+
 /// `w` if its sign is right, else the exact value (rounded, never rounded to zero).
 fn fix_sign(w: f32, exact: f64) -> f32 {
-    let sign = |x: f64| (x > 0.0) as i32 - (x < 0.0) as i32;
-    if sign(f64::from(w)) == sign(exact) || exact.is_nan() {
+    if sign_of(f64::from(w)) == sign_of(exact) || exact.is_nan() {
         w
     } else if exact == 0.0 {
         0.0
@@ -2596,14 +2610,8 @@ mod tests {
                     "{d:?} {x:?} {y:?} {w}"
                 );
             }
-            let (df, xf, yf) = (d.map(f64::from), x.map(f64::from), y.map(f64::from));
-            let (mut approx, mut size) = (0.0f64, 0.0f64);
-            for (c, a, b) in [(0, 1, 2), (1, 2, 0), (2, 0, 1)] {
-                let (p, q) = (xf[a] * yf[b], xf[b] * yf[a]);
-                approx += df[c] * (p - q);
-                size += df[c].abs() * (p.abs() + q.abs());
-            }
-            if approx.abs() > size / (1u64 << 50) as f64 {
+            let (approx, size) = orient_f64(d, x, y);
+            if approx.abs() > size * F64_SIGN_MARGIN {
                 filtered += 1;
             } else {
                 expanded += 1;
