@@ -567,7 +567,15 @@ fn dispatch(cmd: Command) -> Result<u8> {
             quiet,
         } => vocabulary(&scenario, &out, branching, depth, quiet),
         Command::Bench { quick, only } => {
-            eprintln!("measuring (about {} s)...", if quick { 60 } else { 240 });
+            // `tracer` alone: about 10 s (4 s quick) on the 2-core machine of
+            // docs/PERFORMANCE.md; everything about 240 s (60 s quick), other subsets less.
+            let about_s = match (only.as_str(), quick) {
+                ("tracer", true) => 4,
+                ("tracer", false) => 10,
+                (_, true) => 60,
+                (_, false) => 240,
+            };
+            eprintln!("measuring (about {about_s} s)...");
             let mut figures = Vec::new();
             if only == "all" || only == "core" {
                 figures.extend(vinebench::bench::run_all(quick)?);

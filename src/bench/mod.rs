@@ -381,13 +381,26 @@ pub fn cast_mrays(
     views: &[nalgebra::Isometry3<f64>],
     repeats: usize,
 ) -> f64 {
+    cast_mrays_with(
+        renderer.caster(),
+        renderer.scene().trace.origin_in_world,
+        views,
+        repeats,
+    )
+}
+
+/// [`cast_mrays`] with `caster`, whose scene frame's origin is `origin` in the world.
+pub fn cast_mrays_with(
+    caster: &dyn vinebench_sim::render::trace::RayCaster,
+    origin: Vector3<f64>,
+    views: &[nalgebra::Isometry3<f64>],
+    repeats: usize,
+) -> f64 {
     use rayon::prelude::*;
     use vinebench_sim::render::camera::Intrinsics;
     use vinebench_sim::render::trace::{Hit, PACKET_SIZE, RayPacket};
     let intr = Intrinsics::from_hfov(640, 480, 87.0, Default::default());
     let rays = intr.pixel_rays();
-    let origin = renderer.scene().trace.origin_in_world;
-    let caster = renderer.caster();
     let mut best = f64::INFINITY;
     for _ in 0..repeats.max(1) {
         let t0 = Instant::now();
@@ -599,55 +612,88 @@ pub fn slam_feature_figures(
     ])
 }
 
+/// Names of the figures [`cast_pair`] pushes for one world.
+struct PairNames {
+    /// Built-in, Mrays/s.
+    bvh: &'static str,
+    /// Embree at this CPU's widest instruction set, Mrays/s.
+    embree: &'static str,
+    /// Built-in / Embree, per cent (the target's figure).
+    ratio: &'static str,
+    /// Per entry of [`EMBREE_LIMITED_ISAS`]: Embree limited to it, Mrays/s, and the
+    /// built-in's per cent of that.
+    limited: [[&'static str; 2]; 2],
+}
+
+/// Instruction sets the tracer bench also limits Embree to (`max_isa`), widest first:
+/// the built-in caster's SIMD is 4-wide (SSE), and Embree's speed, so the ratio, depends
+/// on the vector width it runs (8-wide with AVX2, 16-wide with AVX-512). Where the CPU
+/// lacks one, Embree runs the widest it has below it.
+#[cfg_attr(not(feature = "embree"), allow(dead_code))]
+const EMBREE_LIMITED_ISAS: [&str; 2] = ["avx2", "sse4.2"];
+
 /// Primary-ray speed of the built-in `bvh` renderer on `views` and, with the `embree`
-/// feature, of an Embree renderer of the same world (`(rows, length_m)`), rounds
-/// interleaved, best round of each; pushes the figures (`names`: built-in, Embree, ratio)
-/// and the built-in/Embree ratio with its target (per cent).
+/// feature, of Embree on the same scene: at this CPU's widest instruction set and limited
+/// to each of [`EMBREE_LIMITED_ISAS`]; rounds interleaved, best round of each. Pushes the
+/// speeds and the built-in's per cent of each Embree's, the first with its target.
 fn cast_pair(
     bvh: &vinebench_sim::render::shade::Renderer,
-    world: (u32, Option<f64>),
     views: &[nalgebra::Isometry3<f64>],
     rounds: usize,
     out: &mut Vec<Figure>,
-    names: [&'static str; 3],
+    names: &PairNames,
     target_pct: f64,
 ) -> Result<(), BenchError> {
+    let origin = bvh.scene().trace.origin_in_world;
+    // Embree's casters of the same scene (the one `[render] backend = "embree"` builds):
+    // at its default (this CPU's widest instruction set), then limited.
+    #[cfg_attr(not(feature = "embree"), allow(unused_mut))]
+    let mut embree: Vec<Box<dyn vinebench_sim::render::trace::RayCaster>> = Vec::new();
     #[cfg(feature = "embree")]
-    let embree = Some(bench_renderer_sized(
-        world.0,
-        world.1,
-        vinebench_sim::params::RenderBackend::Embree,
-    )?);
-    #[cfg(not(feature = "embree"))]
-    let embree: Option<vinebench_sim::render::shade::Renderer> = {
-        let _ = world;
-        None
-    };
-    let (mut best_bvh, mut best_embree) = (0.0f64, 0.0f64);
+    for isa in std::iter::once("").chain(EMBREE_LIMITED_ISAS) {
+        use vinebench_sim::render::embree::{EmbreeCaster, EmbreeOptions};
+        let options = EmbreeOptions {
+            device_config: if isa.is_empty() {
+                String::new()
+            } else {
+                format!("max_isa={isa}")
+            },
+            ..EmbreeOptions::default()
+        };
+        let caster = EmbreeCaster::with_options(&bvh.scene().trace, &options)
+            .map_err(|e| BenchError::Setup(e.to_string()))?;
+        embree.push(Box::new(caster));
+    }
+    let mut best_bvh = 0.0f64;
+    let mut best_embree = vec![0.0f64; embree.len()];
     for _ in 0..rounds.max(1) {
         best_bvh = best_bvh.max(cast_mrays(bvh, views, 1));
-        if let Some(e) = &embree {
-            best_embree = best_embree.max(cast_mrays(e, views, 1));
+        for (e, best) in embree.iter().zip(&mut best_embree) {
+            *best = best.max(cast_mrays_with(e.as_ref(), origin, views, 1));
         }
     }
     out.push(Figure {
-        name: names[0],
+        name: names.bvh,
         value: best_bvh,
         unit: "Mrays/s",
         target: None,
     });
-    if best_embree > 0.0 {
+    let labels = std::iter::once([names.embree, names.ratio]).chain(names.limited);
+    for (i, (&best, [speed, ratio])) in best_embree.iter().zip(labels).enumerate() {
+        if best <= 0.0 {
+            continue;
+        }
         out.push(Figure {
-            name: names[1],
-            value: best_embree,
+            name: speed,
+            value: best,
             unit: "Mrays/s",
             target: None,
         });
         out.push(Figure {
-            name: names[2],
-            value: 100.0 * best_bvh / best_embree,
+            name: ratio,
+            value: 100.0 * best_bvh / best,
             unit: "%",
-            target: Some(target_pct),
+            target: (i == 0).then_some(target_pct),
         });
     }
     Ok(())
@@ -687,15 +733,24 @@ pub fn render_figures(quick: bool, tracer_only: bool) -> Result<Vec<Figure>, Ben
     let rounds = if quick { 3 } else { 10 };
     cast_pair(
         &bvh,
-        (10, None),
         &bench_views(),
         rounds,
         &mut out,
-        [
-            "render: primary rays, built-in BVH, 640x480 first hit, all threads",
-            "render: primary rays, Embree 3, same rays, same run",
-            "render: primary rays, built-in BVH / Embree 3 (10-row x 120 m vineyard)",
-        ],
+        &PairNames {
+            bvh: "render: primary rays, built-in BVH, 640x480 first hit, all threads",
+            embree: "render: primary rays, Embree 3, same rays, same run",
+            ratio: "render: primary rays, built-in BVH / Embree 3 (10-row x 120 m vineyard)",
+            limited: [
+                [
+                    "render: primary rays, Embree 3 limited to AVX2 (8-wide)",
+                    "render: primary rays, built-in BVH / Embree 3 at AVX2 (10-row)",
+                ],
+                [
+                    "render: primary rays, Embree 3 limited to SSE4.2 (4-wide, as the built-in)",
+                    "render: primary rays, built-in BVH / Embree 3 at SSE4.2 (10-row)",
+                ],
+            ],
+        },
         90.0,
     )?;
     // The same on a vineyard of the size issue #4 measured Embree on.
@@ -708,15 +763,24 @@ pub fn render_figures(quick: bool, tracer_only: bool) -> Result<Vec<Figure>, Ben
     });
     cast_pair(
         &small,
-        (REFERENCE_ROWS, Some(REFERENCE_LENGTH_M)),
         &reference_views(),
         rounds,
         &mut out,
-        [
-            "render: 4-row x 30 m vineyard, primary rays, built-in BVH",
-            "render: 4-row x 30 m vineyard, primary rays, Embree 3",
-            "render: 4-row x 30 m vineyard, primary rays, built-in BVH / Embree 3",
-        ],
+        &PairNames {
+            bvh: "render: 4-row x 30 m vineyard, primary rays, built-in BVH",
+            embree: "render: 4-row x 30 m vineyard, primary rays, Embree 3",
+            ratio: "render: 4-row x 30 m vineyard, primary rays, built-in BVH / Embree 3",
+            limited: [
+                [
+                    "render: 4-row x 30 m vineyard, primary rays, Embree 3 limited to AVX2",
+                    "render: 4-row x 30 m vineyard, built-in BVH / Embree 3 at AVX2",
+                ],
+                [
+                    "render: 4-row x 30 m vineyard, primary rays, Embree 3 limited to SSE4.2",
+                    "render: 4-row x 30 m vineyard, built-in BVH / Embree 3 at SSE4.2",
+                ],
+            ],
+        },
         100.0,
     )?;
     drop(small);
