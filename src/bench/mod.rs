@@ -622,7 +622,7 @@ struct PairNames {
     ratio: &'static str,
     /// Per entry of [`EMBREE_LIMITED_ISAS`]: Embree limited to it, Mrays/s, and the
     /// built-in's per cent of that.
-    limited: [[&'static str; 2]; 2],
+    limited: [[&'static str; 2]; EMBREE_LIMITED_ISAS.len()],
 }
 
 /// Instruction sets the tracer bench also limits Embree to (`max_isa`), widest first:
