@@ -650,14 +650,12 @@ fn cast_pair(
     #[cfg_attr(not(feature = "embree"), allow(unused_mut))]
     let mut embree: Vec<Box<dyn vinebench_sim::render::trace::RayCaster>> = Vec::new();
     #[cfg(feature = "embree")]
-    for isa in std::iter::once("").chain(EMBREE_LIMITED_ISAS) {
+    for device_config in std::iter::once(String::new())
+        .chain(EMBREE_LIMITED_ISAS.map(|isa| format!("max_isa={isa}")))
+    {
         use vinebench_sim::render::embree::{EmbreeCaster, EmbreeOptions};
         let options = EmbreeOptions {
-            device_config: if isa.is_empty() {
-                String::new()
-            } else {
-                format!("max_isa={isa}")
-            },
+            device_config,
             ..EmbreeOptions::default()
         };
         let caster = EmbreeCaster::with_options(&bvh.scene().trace, &options)
