@@ -116,17 +116,33 @@ impl SunlightStereo {
 
     /// Mean projector irradiance at depth `z_m`, W/m².
     pub fn projector_w_m2(&self, z_m: f64) -> f64 {
+        self.projector_at(self.projector_area_1m(), z_m)
+    }
+
+    /// Area the projector lights at 1 m, m²: `4·tan(h/2)·tan(v/2)`.
+    fn projector_area_1m(&self) -> f64 {
         let [h, v] = self.projector_fov_deg;
-        let area_1m = 4.0 * (h.to_radians() / 2.0).tan() * (v.to_radians() / 2.0).tan();
+        4.0 * (h.to_radians() / 2.0).tan() * (v.to_radians() / 2.0).tan()
+    }
+
+    /// [`Self::projector_w_m2`] with the lit area at 1 m given (`snr` computes it once per
+    /// frame, where each pixel took four tangents).
+    #[inline]
+    fn projector_at(&self, area_1m: f64, z_m: f64) -> f64 {
         self.projector_power_w / area_1m / (z_m * z_m).max(1e-6)
     }
 
     /// Texture contrast the matcher sees on a surface with texture contrast `c_p` under
     /// ambient `e_w_m2` at depth `z_m` (step 2).
     pub fn contrast(&self, c_p: f64, e_w_m2: f64, z_m: f64) -> f64 {
-        let p = self.projector_w_m2(z_m);
-        let total = (e_w_m2.max(0.0) + p).max(1e-12);
-        c_p.hypot(self.dot_contrast * p / total)
+        self.contrast_under(c_p, e_w_m2, self.projector_w_m2(z_m))
+    }
+
+    /// [`Self::contrast`] with the projector's irradiance `p_w_m2` given.
+    #[inline]
+    fn contrast_under(&self, c_p: f64, e_w_m2: f64, p_w_m2: f64) -> f64 {
+        let total = (e_w_m2.max(0.0) + p_w_m2).max(1e-12);
+        c_p.hypot(self.dot_contrast * p_w_m2 / total)
     }
 
     /// Relative noise σ/s of a pixel at level `s` (fraction of full scale; step 3).
@@ -170,6 +186,7 @@ impl SunlightStereo {
         assert_eq!(frame.depth_m.len(), n, "depth image size");
         assert_eq!(frame.irradiance.len(), n, "irradiance image size");
         // The infrared image: ambient light plus the projector's on each surface.
+        let area_1m = self.projector_area_1m();
         scratch.ir.resize(n, 0.0);
         scratch
             .ir
@@ -183,7 +200,7 @@ impl SunlightStereo {
                     let z = f64::from(frame.depth_m[i]);
                     let e = f64::from(frame.irradiance[i]) * self.ambient_w_m2;
                     *ir = if z > 0.0 && z.is_finite() && e > 0.0 {
-                        y * (e + self.projector_w_m2(z)) / e
+                        y * (e + self.projector_at(area_1m, z)) / e
                     } else {
                         y
                     };
@@ -228,7 +245,7 @@ impl SunlightStereo {
                     let var = (rect(sum_sq) / count - m * m).max(0.0);
                     let c_p = if m > 0.0 { var.sqrt() / m } else { 0.0 };
                     let e = f64::from(frame.irradiance[i]) * self.ambient_w_m2;
-                    let c = self.contrast(c_p, e, z);
+                    let c = self.contrast_under(c_p, e, self.projector_at(area_1m, z));
                     let level = if mean > 0.0 {
                         self.ae_level * ir[i] / mean
                     } else {
