@@ -163,9 +163,11 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
     let expectations = evaluate(sc, &scores);
     let report = Report::new(sc, &sim, scores, expectations);
     report::write(&dir, &sim, &report)?;
+    let export_started = Instant::now();
     if let Some(m) = &sim.mapping {
         crate::runner::mapping::export(&dir, m)?;
     }
+    let map_export_s = export_started.elapsed().as_secs_f64();
     let mut timing = serde_json::json!({
         "wall_s": wall_s,
         "simulated_s": sim.duration_s,
@@ -180,6 +182,8 @@ pub fn run(sc: &LoadedScenario, opts: &RunOptions) -> Result<RunOutcome, RunErro
         // it, the integration during the run and each map's finishing steps.
         timing["mapping_s"] = serde_json::json!(m.wall_s);
         timing["mapping_during_run_s"] = serde_json::json!(m.during_run_s);
+        // After scoring: writing the maps, meshes and model exports (`map/`).
+        timing["map_export_s"] = serde_json::json!(map_export_s);
         for sm in &m.maps {
             timing[format!("mapping_finish_{}", sm.source)] = serde_json::json!(sm.timing);
         }

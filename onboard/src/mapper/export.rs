@@ -3,6 +3,7 @@
 //! MJCF snippet for MuJoCo.
 
 use super::{MapperError, TriangleMesh};
+use rayon::prelude::*;
 use std::io::{BufWriter, Write};
 use std::path::Path;
 
@@ -72,43 +73,90 @@ pub fn read_obj(path: &Path) -> Result<TriangleMesh, MapperError> {
 /// Writes `mesh` as Wavefront OBJ: `v x y z r g b` (colour in 0..1, the extension
 /// MeshLab, Open3D and Blender read), `vn` normals when present, and 1-based faces.
 pub fn write_obj(mesh: &TriangleMesh, path: &Path) -> Result<(), MapperError> {
-    let file = std::fs::File::create(path).map_err(io_err(path))?;
-    let mut w = BufWriter::with_capacity(1 << 20, file);
-    let e = io_err(path);
-    writeln!(
-        w,
-        "# vinebench mesh (Ball-Pivoting), world frame (ENU), metres"
-    )
-    .map_err(&e)?;
-    for (i, v) in mesh.vertices.iter().enumerate() {
-        let c = mesh.colors.get(i).copied().unwrap_or([200; 3]);
-        writeln!(
-            w,
-            "v {} {} {} {:.4} {:.4} {:.4}",
-            v[0],
-            v[1],
-            v[2],
-            f32::from(c[0]) / 255.0,
-            f32::from(c[1]) / 255.0,
-            f32::from(c[2]) / 255.0
-        )
-        .map_err(&e)?;
-    }
-    let with_normals = mesh.normals.len() == mesh.vertices.len() && !mesh.normals.is_empty();
-    if with_normals {
-        for n in &mesh.normals {
-            writeln!(w, "vn {} {} {}", n[0], n[1], n[2]).map_err(&e)?;
+    write_obj_to(mesh, &[path])
+}
+
+/// Lines of an OBJ formatted per parallel task.
+const OBJ_LINES_PER_CHUNK: usize = 16_384;
+
+/// [`write_obj`] to each of `paths`, the same bytes in each. The text is formatted once,
+/// in chunks of lines on rayon's threads, and each round of chunks is written in order,
+/// so memory stays at a few megabytes whatever the mesh.
+pub fn write_obj_to(mesh: &TriangleMesh, paths: &[&Path]) -> Result<(), MapperError> {
+    let mut files = paths
+        .iter()
+        .map(|p| {
+            let file = std::fs::File::create(p).map_err(io_err(p))?;
+            Ok((BufWriter::with_capacity(1 << 20, file), *p))
+        })
+        .collect::<Result<Vec<_>, MapperError>>()?;
+    let mut write_all = |bytes: &[u8]| {
+        files
+            .iter_mut()
+            .try_for_each(|(w, p)| w.write_all(bytes).map_err(io_err(p)))
+    };
+    write_all(b"# vinebench mesh (Ball-Pivoting), world frame (ENU), metres\n")?;
+    // A colour channel is one of 256 values: its text `{:.4}` of `c / 255` once each.
+    let channel: Vec<String> = (0..=255u8)
+        .map(|c| format!("{:.4}", f32::from(c) / 255.0))
+        .collect();
+    let nv = mesh.vertices.len();
+    let with_normals = mesh.normals.len() == nv && nv > 0;
+    let nn = if with_normals { nv } else { 0 };
+    let lines = nv + nn + mesh.triangles.len();
+    let chunks = lines.div_ceil(OBJ_LINES_PER_CHUNK);
+    let per_round = 4 * rayon::current_num_threads().max(1);
+    for round in (0..chunks).step_by(per_round) {
+        let texts: Vec<String> = (round..(round + per_round).min(chunks))
+            .into_par_iter()
+            .map(|chunk| {
+                let from = chunk * OBJ_LINES_PER_CHUNK;
+                let to = (from + OBJ_LINES_PER_CHUNK).min(lines);
+                let mut s = String::with_capacity(64 * (to - from));
+                for line in from..to {
+                    obj_line(mesh, &channel, with_normals, line, &mut s);
+                }
+                s
+            })
+            .collect();
+        for t in &texts {
+            write_all(t.as_bytes())?;
         }
     }
-    for t in &mesh.triangles {
-        let [a, b, c] = t.map(|i| i + 1);
+    files
+        .iter_mut()
+        .try_for_each(|(w, p)| w.flush().map_err(io_err(p)))
+}
+
+/// Appends line `line` of the OBJ body (vertices, then normals if any, then faces) to
+/// `s`; `channel[c]` is the text of colour channel value `c`.
+fn obj_line(
+    mesh: &TriangleMesh,
+    channel: &[String],
+    with_normals: bool,
+    line: usize,
+    s: &mut String,
+) {
+    use std::fmt::Write as _;
+    let nv = mesh.vertices.len();
+    let nn = if with_normals { nv } else { 0 };
+    // Writing to a `String` cannot fail.
+    let _ = if line < nv {
+        let v = mesh.vertices[line];
+        let c = mesh.colors.get(line).copied().unwrap_or([200; 3]);
+        let [r, g, b] = c.map(|x| channel[usize::from(x)].as_str());
+        writeln!(s, "v {} {} {} {r} {g} {b}", v[0], v[1], v[2])
+    } else if line < nv + nn {
+        let n = mesh.normals[line - nv];
+        writeln!(s, "vn {} {} {}", n[0], n[1], n[2])
+    } else {
+        let [a, b, c] = mesh.triangles[line - nv - nn].map(|i| u64::from(i) + 1);
         if with_normals {
-            writeln!(w, "f {a}//{a} {b}//{b} {c}//{c}").map_err(&e)?;
+            writeln!(s, "f {a}//{a} {b}//{b} {c}//{c}")
         } else {
-            writeln!(w, "f {a} {b} {c}").map_err(&e)?;
+            writeln!(s, "f {a} {b} {c}")
         }
-    }
-    w.flush().map_err(&e)
+    };
 }
 
 /// Escapes text for XML content and attributes.
@@ -192,16 +240,27 @@ pub fn write_gazebo_model(
     dir: &Path,
     name: &str,
 ) -> Result<std::path::PathBuf, MapperError> {
+    let (model, obj) = gazebo_model_folder(dir, name)?;
+    write_obj(mesh, &obj)?;
+    Ok(model)
+}
+
+/// The Gazebo model folder `<dir>/<name>/` of [`write_gazebo_model`] without its mesh:
+/// `model.config`, `model.sdf` and the `meshes/` folder. Returns the folder and the path
+/// its `mesh.obj` must be written to.
+pub fn gazebo_model_folder(
+    dir: &Path,
+    name: &str,
+) -> Result<(std::path::PathBuf, std::path::PathBuf), MapperError> {
     let model = dir.join(name);
     let meshes = model.join("meshes");
     std::fs::create_dir_all(&meshes).map_err(io_err(&meshes))?;
-    write_obj(mesh, &meshes.join("mesh.obj"))?;
     write_text(&model.join("model.config"), &model_config(name))?;
     write_text(
         &model.join("model.sdf"),
         &model_sdf(name, &format!("model://{name}/meshes/mesh.obj")),
     )?;
-    Ok(model)
+    Ok((model, meshes.join("mesh.obj")))
 }
 
 /// Writes `<dir>/<name>.mjcf.xml` referencing `mesh_file` (relative to `dir`).
@@ -279,6 +338,105 @@ mod tests {
             assert!(e.contains("m.obj") && e.contains("OBJ"), "{text}: {e}");
         }
         let e = read_obj(Path::new("/no/such/dir/m.obj"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("/no/such/dir/m.obj"), "{e}");
+    }
+
+    /// A mesh of `n` vertices with coordinates of every magnitude and sign, every colour
+    /// value, and faces over them.
+    fn mesh(n: usize, normals: bool, colours: bool) -> TriangleMesh {
+        let mut x = 0x9E37_79B9_u32;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x
+        };
+        let mut coord = || {
+            let r = next();
+            let scale = [1e-7f32, 1e-3, 0.5, 8.0, 120.0, 3.0e5][(r % 6) as usize];
+            (f32::from((r >> 8) as u16) / 65535.0 - 0.5) * scale
+        };
+        let vertices: Vec<[f32; 3]> = (0..n).map(|_| [coord(), coord(), coord()]).collect();
+        TriangleMesh {
+            normals: if normals {
+                (0..n).map(|_| [coord(), coord(), coord()]).collect()
+            } else {
+                Vec::new()
+            },
+            colors: if colours {
+                (0..n)
+                    .map(|i| [(i % 256) as u8, (i * 7 % 256) as u8, 255])
+                    .collect()
+            } else {
+                Vec::new()
+            },
+            triangles: (0..n.saturating_sub(2) as u32)
+                .map(|i| [i, i + 1, i + 2])
+                .collect(),
+            vertices,
+        }
+    }
+
+    /// The OBJ as a line-by-line `writeln!` of each element (the format as written before
+    /// it was formatted in parallel chunks).
+    fn obj_reference(m: &TriangleMesh) -> String {
+        use std::fmt::Write as _;
+        let mut s = String::from("# vinebench mesh (Ball-Pivoting), world frame (ENU), metres\n");
+        for (i, v) in m.vertices.iter().enumerate() {
+            let c = m.colors.get(i).copied().unwrap_or([200; 3]);
+            let [r, g, b] = c.map(|x| f32::from(x) / 255.0);
+            writeln!(s, "v {} {} {} {r:.4} {g:.4} {b:.4}", v[0], v[1], v[2]).unwrap();
+        }
+        let with_normals = m.normals.len() == m.vertices.len() && !m.normals.is_empty();
+        if with_normals {
+            for n in &m.normals {
+                writeln!(s, "vn {} {} {}", n[0], n[1], n[2]).unwrap();
+            }
+        }
+        for t in &m.triangles {
+            let [a, b, c] = t.map(|i| i + 1);
+            if with_normals {
+                writeln!(s, "f {a}//{a} {b}//{b} {c}//{c}").unwrap();
+            } else {
+                writeln!(s, "f {a} {b} {c}").unwrap();
+            }
+        }
+        s
+    }
+
+    /// The chunked, parallel OBJ writer gives the line-by-line text byte for byte, in
+    /// every copy: meshes across several chunks (with and without normals and colours),
+    /// one short of a chunk, and empty.
+    #[test]
+    fn the_obj_is_the_line_by_line_text_in_every_copy() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a.obj"), dir.path().join("b.obj"));
+        for (n, normals, colours) in [
+            (20_000, true, true),
+            (20_000, false, true),
+            (20_000, true, false),
+            (OBJ_LINES_PER_CHUNK - 1, false, false),
+            (0, true, true),
+        ] {
+            let m = mesh(n, normals, colours);
+            write_obj_to(&m, &[&a, &b]).unwrap();
+            let expected = obj_reference(&m);
+            for p in [&a, &b] {
+                let text = std::fs::read_to_string(p).unwrap();
+                assert!(
+                    text == expected,
+                    "{n} vertices, normals {normals}: {p:?} differs"
+                );
+            }
+        }
+        // Every colour channel's text is what `{:.4}` of c/255 gives.
+        let m = mesh(256, false, true);
+        write_obj(&m, &a).unwrap();
+        assert_eq!(std::fs::read_to_string(&a).unwrap(), obj_reference(&m));
+        // A folder that cannot be written is named.
+        let e = write_obj_to(&m, &[&a, Path::new("/no/such/dir/m.obj")])
             .unwrap_err()
             .to_string();
         assert!(e.contains("/no/such/dir/m.obj"), "{e}");

@@ -938,6 +938,20 @@ pub struct Map {
     pub grvi_threshold: f32,
 }
 
+/// The top of the elevation colour scale: the element at the 99th percentile of
+/// `elevation`'s sorted order (`total_cmp`), at least 1 mm; 1 m for an empty map. A
+/// selection finds it, not a sort: elements equal under `total_cmp` have the same bits.
+fn elevation_scale(elevation: &[f32]) -> f32 {
+    let mut e = elevation.to_vec();
+    let at = ((e.len() as f64) * 0.99) as usize;
+    let top = if at < e.len() {
+        *e.select_nth_unstable_by(at, f32::total_cmp).1
+    } else {
+        1.0
+    };
+    top.max(1e-3)
+}
+
 /// Jet colour map of `t` in 0..1.
 fn jet(t: f32) -> [u8; 3] {
     let t = t.clamp(0.0, 1.0);
@@ -958,9 +972,15 @@ impl Map {
     /// The cloud coloured by GRVI as the paper's Figure 15 b: vegetation green, lighter
     /// for higher GRVI; everything else blue.
     pub fn grvi_colored(&self) -> PointCloud {
-        let mut c = self.cloud.clone();
-        c.colors = self
-            .cloud
+        PointCloud {
+            colors: self.grvi_colors(),
+            ..self.cloud.clone()
+        }
+    }
+
+    /// The colours of [`Map::grvi_colored`], one per point.
+    pub fn grvi_colors(&self) -> Vec<[u8; 3]> {
+        self.cloud
             .grvi
             .iter()
             .map(|&g| {
@@ -977,45 +997,95 @@ impl Map {
                     [30, 60, 200]
                 }
             })
-            .collect();
-        c
+            .collect()
     }
 
     /// The cloud coloured by elevation (jet, 0 to the 99th percentile of elevation), as
     /// the paper's Figure 15 c.
     pub fn elevation_colored(&self) -> PointCloud {
-        let mut e: Vec<f32> = self.cloud.elevation.clone();
-        e.sort_by(f32::total_cmp);
-        let top = e
-            .get(((e.len() as f64) * 0.99) as usize)
-            .copied()
-            .unwrap_or(1.0)
-            .max(1e-3);
-        let mut c = self.cloud.clone();
-        c.colors = self.cloud.elevation.iter().map(|&z| jet(z / top)).collect();
-        c
+        PointCloud {
+            colors: self.elevation_colors(),
+            ..self.cloud.clone()
+        }
+    }
+
+    /// The colours of [`Map::elevation_colored`], one per point.
+    pub fn elevation_colors(&self) -> Vec<[u8; 3]> {
+        let top = elevation_scale(&self.cloud.elevation);
+        self.cloud.elevation.iter().map(|&z| jet(z / top)).collect()
     }
 
     /// Writes `map.ply`, `map_grvi.ply`, `map_elevation.ply` and, with a mesh,
     /// `mesh.ply`, `mesh.obj`, the Gazebo model folder `vinebench_map/` and
     /// `vinebench_map.mjcf.xml` into `dir` (created if needed).
+    ///
+    /// The files are written side by side on rayon's threads (most of the time is the
+    /// kernel copying gigabytes into the page cache, one thread per file); on failure the
+    /// error is the first in the order above.
     pub fn export(&self, dir: &Path) -> Result<(), MapperError> {
         std::fs::create_dir_all(dir).map_err(|source| MapperError::Io {
             path: dir.to_path_buf(),
             source,
         })?;
-        ply::write_cloud(&self.cloud, &dir.join("map.ply"))?;
-        ply::write_cloud(&self.grvi_colored(), &dir.join("map_grvi.ply"))?;
-        ply::write_cloud(&self.elevation_colored(), &dir.join("map_elevation.ply"))?;
+        type Job<'a> = Box<dyn Fn() -> Result<(), MapperError> + Send + Sync + 'a>;
+        let (map_ply, grvi_ply, elevation_ply) = (
+            dir.join("map.ply"),
+            dir.join("map_grvi.ply"),
+            dir.join("map_elevation.ply"),
+        );
+        let mut jobs: Vec<Job<'_>> = vec![
+            Box::new(move || ply::write_cloud(&self.cloud, &map_ply)),
+            Box::new(move || ply::write_cloud_colored(&self.cloud, &self.grvi_colors(), &grvi_ply)),
+            Box::new(move || {
+                ply::write_cloud_colored(&self.cloud, &self.elevation_colors(), &elevation_ply)
+            }),
+        ];
         if let Some(mesh) = &self.mesh {
-            ply::write_mesh(mesh, &dir.join("mesh.ply"))?;
-            export::write_obj(mesh, &dir.join("mesh.obj"))?;
-            export::write_gazebo_model(mesh, dir, MODEL_NAME)?;
+            let (mesh_ply, mesh_obj) = (dir.join("mesh.ply"), dir.join("mesh.obj"));
+            let model_obj = export::gazebo_model_folder(dir, MODEL_NAME)?.1;
             export::write_mjcf(dir, MODEL_NAME, "mesh.obj")?;
+            jobs.push(Box::new(move || ply::write_mesh(mesh, &mesh_ply)));
+            // One formatting of the OBJ for both copies.
+            jobs.push(Box::new(move || {
+                export::write_obj_to(mesh, &[&mesh_obj, &model_obj])
+            }));
         }
-        Ok(())
+        let results: Vec<Result<(), MapperError>> = jobs.par_iter().map(|job| job()).collect();
+        results.into_iter().collect()
     }
 }
 
 /// Name of the exported Gazebo model and MJCF file.
 pub const MODEL_NAME: &str = "vinebench_map";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The colour scale's top by selection is the sorted order's element at the 99th
+    /// percentile, with ties, negative zeros, NaN and the short cases.
+    #[test]
+    fn the_elevation_scale_is_the_sorted_percentile() {
+        let by_sort = |e: &[f32]| {
+            let mut s = e.to_vec();
+            s.sort_by(f32::total_cmp);
+            s.get(((s.len() as f64) * 0.99) as usize)
+                .copied()
+                .unwrap_or(1.0)
+                .max(1e-3)
+        };
+        let mut state = 0x2545_F491_4F6C_DD1D_u64;
+        for n in [0usize, 1, 2, 99, 100, 101, 1000, 4321] {
+            let e: Vec<f32> = (0..n)
+                .map(|i| match test_rng::next_u64(&mut state) % 9 {
+                    0 => -0.0,
+                    1 => 0.0,
+                    2 => f32::NAN,
+                    3 => 2.5,
+                    _ => (i as f32).sin() * 3.0,
+                })
+                .collect();
+            assert_eq!(elevation_scale(&e).to_bits(), by_sort(&e).to_bits(), "{n}");
+        }
+    }
+}

@@ -310,6 +310,20 @@ fn create(path: &Path) -> Result<BufWriter<std::fs::File>, MapperError> {
 /// float, `elevation` float per vertex. Missing normals, GRVI or elevation are written
 /// as zeros.
 pub fn write_cloud(cloud: &PointCloud, path: &Path) -> Result<(), MapperError> {
+    write_cloud_colored(cloud, &cloud.colors, path)
+}
+
+/// Points of a cloud serialised per write.
+const CLOUD_POINTS_PER_WRITE: usize = 1 << 16;
+
+/// [`write_cloud`] with `colors` in place of the cloud's own (a point without one gets
+/// black), so a recoloured copy of the cloud need not be made. Written in slices of
+/// [`CLOUD_POINTS_PER_WRITE`] points through one reused buffer.
+pub fn write_cloud_colored(
+    cloud: &PointCloud,
+    colors: &[[u8; 3]],
+    path: &Path,
+) -> Result<(), MapperError> {
     let mut w = create(path)?;
     let n = cloud.positions.len();
     let header = format!(
@@ -319,20 +333,23 @@ pub fn write_cloud(cloud: &PointCloud, path: &Path) -> Result<(), MapperError> {
          property float nx\nproperty float ny\nproperty float nz\n\
          property float grvi\nproperty float elevation\nend_header\n"
     );
-    let mut buf = Vec::with_capacity(header.len() + n * 35);
-    buf.extend_from_slice(header.as_bytes());
-    for i in 0..n {
-        for c in cloud.positions[i] {
-            buf.extend_from_slice(&c.to_le_bytes());
+    w.write_all(header.as_bytes()).map_err(io_err(path))?;
+    let mut buf = Vec::with_capacity(CLOUD_POINTS_PER_WRITE * 35);
+    for from in (0..n).step_by(CLOUD_POINTS_PER_WRITE) {
+        buf.clear();
+        for i in from..(from + CLOUD_POINTS_PER_WRITE).min(n) {
+            for c in cloud.positions[i] {
+                buf.extend_from_slice(&c.to_le_bytes());
+            }
+            buf.extend_from_slice(&colors.get(i).copied().unwrap_or([0; 3]));
+            for c in cloud.normals.get(i).copied().unwrap_or([0.0; 3]) {
+                buf.extend_from_slice(&c.to_le_bytes());
+            }
+            buf.extend_from_slice(&cloud.grvi.get(i).copied().unwrap_or(0.0).to_le_bytes());
+            buf.extend_from_slice(&cloud.elevation.get(i).copied().unwrap_or(0.0).to_le_bytes());
         }
-        buf.extend_from_slice(&cloud.colors.get(i).copied().unwrap_or([0; 3]));
-        for c in cloud.normals.get(i).copied().unwrap_or([0.0; 3]) {
-            buf.extend_from_slice(&c.to_le_bytes());
-        }
-        buf.extend_from_slice(&cloud.grvi.get(i).copied().unwrap_or(0.0).to_le_bytes());
-        buf.extend_from_slice(&cloud.elevation.get(i).copied().unwrap_or(0.0).to_le_bytes());
+        w.write_all(&buf).map_err(io_err(path))?;
     }
-    w.write_all(&buf).map_err(io_err(path))?;
     w.flush().map_err(io_err(path))
 }
 
@@ -434,4 +451,43 @@ pub fn read_mesh(path: &Path) -> Result<TriangleMesh, MapperError> {
         },
         triangles,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    /// A cloud written with other colours equals the cloud recoloured and written, byte
+    /// for byte, across several write slices (and with too few colours: black), and reads
+    /// back.
+    #[test]
+    fn a_cloud_written_with_other_colours_equals_the_recoloured_cloud() {
+        let n = 2 * CLOUD_POINTS_PER_WRITE + 17;
+        let f = |i: usize, k: usize| (i * 3 + k) as f32 * 0.001 - 50.0;
+        let cloud = PointCloud {
+            positions: (0..n).map(|i| [f(i, 0), f(i, 1), f(i, 2)]).collect(),
+            colors: (0..n).map(|i| [(i % 251) as u8, 3, 9]).collect(),
+            normals: (0..n).map(|i| [f(i, 2), 0.5, -0.25]).collect(),
+            grvi: (0..n).map(|i| f(i, 1) * 0.01).collect(),
+            elevation: (0..n).map(|i| f(i, 0) * 0.1).collect(),
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a.ply"), dir.path().join("b.ply"));
+        for len in [n, n - 100] {
+            let colours: Vec<[u8; 3]> = (0..len).map(|i| [7, (i % 256) as u8, 200]).collect();
+            let mut recoloured = cloud.clone();
+            recoloured.colors = colours.clone();
+            write_cloud_colored(&cloud, &colours, &a).unwrap();
+            write_cloud(&recoloured, &b).unwrap();
+            assert!(
+                std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap(),
+                "{len} colours"
+            );
+        }
+        let back = read_cloud(&b).unwrap();
+        assert_eq!(back.positions, cloud.positions);
+        assert_eq!(back.colors[n - 1], [0; 3]);
+        assert_eq!(back.colors[0], [7, 0, 200]);
+    }
 }
