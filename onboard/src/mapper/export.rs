@@ -101,8 +101,8 @@ pub fn write_obj_to(mesh: &TriangleMesh, paths: &[&Path]) -> Result<(), MapperEr
         .map(|c| format!("{:.4}", f32::from(c) / 255.0))
         .collect();
     let nv = mesh.vertices.len();
-    let with_normals = mesh.normals.len() == nv && nv > 0;
-    let nn = if with_normals { nv } else { 0 };
+    // Normals are written when every vertex has one.
+    let nn = if mesh.normals.len() == nv { nv } else { 0 };
     let lines = nv + nn + mesh.triangles.len();
     let chunks = lines.div_ceil(OBJ_LINES_PER_CHUNK);
     let per_round = 4 * rayon::current_num_threads().max(1);
@@ -114,7 +114,7 @@ pub fn write_obj_to(mesh: &TriangleMesh, paths: &[&Path]) -> Result<(), MapperEr
                 let to = (from + OBJ_LINES_PER_CHUNK).min(lines);
                 let mut s = String::with_capacity(64 * (to - from));
                 for line in from..to {
-                    obj_line(mesh, &channel, with_normals, line, &mut s);
+                    obj_line(mesh, &channel, nn, line, &mut s);
                 }
                 s
             })
@@ -128,18 +128,11 @@ pub fn write_obj_to(mesh: &TriangleMesh, paths: &[&Path]) -> Result<(), MapperEr
         .try_for_each(|(w, p)| w.flush().map_err(io_err(p)))
 }
 
-/// Appends line `line` of the OBJ body (vertices, then normals if any, then faces) to
-/// `s`; `channel[c]` is the text of colour channel value `c`.
-fn obj_line(
-    mesh: &TriangleMesh,
-    channel: &[String],
-    with_normals: bool,
-    line: usize,
-    s: &mut String,
-) {
+/// Appends line `line` of the OBJ body (the vertices, then `nn` normals: all or none,
+/// then the faces) to `s`; `channel[c]` is the text of colour channel value `c`.
+fn obj_line(mesh: &TriangleMesh, channel: &[String], nn: usize, line: usize, s: &mut String) {
     use std::fmt::Write as _;
     let nv = mesh.vertices.len();
-    let nn = if with_normals { nv } else { 0 };
     // Writing to a `String` cannot fail.
     let _ = if line < nv {
         let v = mesh.vertices[line];
@@ -151,7 +144,7 @@ fn obj_line(
         writeln!(s, "vn {} {} {}", n[0], n[1], n[2])
     } else {
         let [a, b, c] = mesh.triangles[line - nv - nn].map(|i| u64::from(i) + 1);
-        if with_normals {
+        if nn > 0 {
             writeln!(s, "f {a}//{a} {b}//{b} {c}//{c}")
         } else {
             writeln!(s, "f {a} {b} {c}")

@@ -969,16 +969,8 @@ impl Map {
             .collect()
     }
 
-    /// The cloud coloured by GRVI as the paper's Figure 15 b: vegetation green, lighter
-    /// for higher GRVI; everything else blue.
-    pub fn grvi_colored(&self) -> PointCloud {
-        PointCloud {
-            colors: self.grvi_colors(),
-            ..self.cloud.clone()
-        }
-    }
-
-    /// The colours of [`Map::grvi_colored`], one per point.
+    /// The cloud's colours by GRVI as the paper's Figure 15 b, one per point: vegetation
+    /// green, lighter for higher GRVI; everything else blue.
     pub fn grvi_colors(&self) -> Vec<[u8; 3]> {
         self.cloud
             .grvi
@@ -1000,16 +992,8 @@ impl Map {
             .collect()
     }
 
-    /// The cloud coloured by elevation (jet, 0 to the 99th percentile of elevation), as
-    /// the paper's Figure 15 c.
-    pub fn elevation_colored(&self) -> PointCloud {
-        PointCloud {
-            colors: self.elevation_colors(),
-            ..self.cloud.clone()
-        }
-    }
-
-    /// The colours of [`Map::elevation_colored`], one per point.
+    /// The cloud's colours by elevation as the paper's Figure 15 c, one per point (jet,
+    /// 0 to the 99th percentile of elevation).
     pub fn elevation_colors(&self) -> Vec<[u8; 3]> {
         let top = elevation_scale(&self.cloud.elevation);
         self.cloud.elevation.iter().map(|&z| jet(z / top)).collect()
@@ -1019,9 +1003,10 @@ impl Map {
     /// `mesh.ply`, `mesh.obj`, the Gazebo model folder `vinebench_map/` and
     /// `vinebench_map.mjcf.xml` into `dir` (created if needed).
     ///
-    /// The files are written side by side on rayon's threads (most of the time is the
-    /// kernel copying gigabytes into the page cache, one thread per file); on failure the
-    /// error is the first in the order above.
+    /// The model folder and the MJCF file are written first; the clouds and meshes then
+    /// side by side on rayon's threads (most of the time is the kernel copying gigabytes
+    /// into the page cache, one thread per file). Where several fail, the error is the
+    /// first failed file's in the order above.
     pub fn export(&self, dir: &Path) -> Result<(), MapperError> {
         std::fs::create_dir_all(dir).map_err(|source| MapperError::Io {
             path: dir.to_path_buf(),
