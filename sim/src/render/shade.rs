@@ -506,6 +506,7 @@ impl Renderer {
         (albedo.map(|a| a * e), e)
     }
 }
+
 /// `x.exp()`, without the call where it is exactly `+0.0`: below `UNDERFLOWS_TO_ZERO`
 /// `e^x` is under half of `f32`'s smallest subnormal (`e^-103.97`) and rounds to zero.
 /// Most sky pixels are far from the sun, and the sun glow's narrow term took libm's slow
