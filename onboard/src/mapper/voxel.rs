@@ -20,6 +20,7 @@
 pub use super::voxel_table::VoxelAcc;
 use super::voxel_table::{PREFETCH_AHEAD, VoxelTable};
 use rayon::prelude::*;
+use std::ops::Range;
 
 /// Number of hash-map shards (a power of two).
 pub const SHARDS: usize = 64;
@@ -406,32 +407,55 @@ impl VoxelGrid {
             .collect()
     }
 
-    /// Calls `f` on the voxels of `runs` in ascending key order (a k-way merge; keys are
-    /// unique across shards), freeing each run once it is read.
-    fn merge_runs(runs: Vec<Vec<(u64, VoxelAcc)>>, mut f: impl FnMut(u64, &VoxelAcc)) {
+    /// The runs cut into `parts` key ranges: for each part, the range of each run that
+    /// it holds. The cuts are keys of the longest run at even steps, so the parts are
+    /// about even; merged one by one and put end to end they are the whole merge, for
+    /// any number of parts.
+    fn merge_parts(runs: &[Vec<(u64, VoxelAcc)>], parts: usize) -> Vec<Vec<Range<usize>>> {
+        let longest = runs
+            .iter()
+            .max_by_key(|r| r.len())
+            .map_or(&[][..], |r| &r[..]);
+        let mut cuts: Vec<u64> = (1..parts.max(1))
+            .map(|j| j * longest.len() / parts)
+            .filter(|&i| i > 0 && i < longest.len())
+            .map(|i| longest[i].0)
+            .collect();
+        cuts.dedup();
+        let mut from = vec![0usize; runs.len()];
+        let mut out = Vec::with_capacity(cuts.len() + 1);
+        for cut in cuts.iter().map(Some).chain([None]) {
+            let to: Vec<usize> = runs
+                .iter()
+                .map(|r| cut.map_or(r.len(), |&c| r.partition_point(|e| e.0 < c)))
+                .collect();
+            out.push(from.iter().zip(&to).map(|(&a, &b)| a..b).collect());
+            from = to;
+        }
+        out
+    }
+
+    /// Calls `f` on the voxels of the runs' `ranges` in ascending key order (a k-way
+    /// merge; keys are unique across shards).
+    fn merge_ranges(
+        runs: &[Vec<(u64, VoxelAcc)>],
+        ranges: &[Range<usize>],
+        mut f: impl FnMut(u64, &VoxelAcc),
+    ) {
         use std::cmp::Reverse;
         use std::collections::BinaryHeap;
-        let mut runs: Vec<std::vec::IntoIter<(u64, VoxelAcc)>> =
-            runs.into_iter().map(Vec::into_iter).collect();
-        let mut current: Vec<Option<VoxelAcc>> = vec![None; runs.len()];
+        let mut next: Vec<usize> = ranges.iter().map(|r| r.start).collect();
         let mut heads = BinaryHeap::with_capacity(runs.len());
-        for (r, run) in runs.iter_mut().enumerate() {
-            if let Some((key, acc)) = run.next() {
-                current[r] = Some(acc);
-                heads.push(Reverse((key, r)));
+        for (r, range) in ranges.iter().enumerate() {
+            if !range.is_empty() {
+                heads.push(Reverse((runs[r][range.start].0, r)));
             }
         }
         while let Some(Reverse((key, r))) = heads.pop() {
-            if let Some(acc) = current[r].take() {
-                f(key, &acc);
-            }
-            match runs[r].next() {
-                Some((next, acc)) => {
-                    current[r] = Some(acc);
-                    heads.push(Reverse((next, r)));
-                }
-                // Frees the run's buffer.
-                None => runs[r] = Vec::new().into_iter(),
+            f(key, &runs[r][next[r]].1);
+            next[r] += 1;
+            if next[r] < ranges[r].end {
+                heads.push(Reverse((runs[r][next[r]].0, r)));
             }
         }
     }
@@ -440,27 +464,52 @@ impl VoxelGrid {
     pub fn into_voxels(mut self, min_count: u32) -> Vec<Voxel> {
         let runs = self.take_sorted_runs(min_count);
         let mut out = Vec::with_capacity(runs.iter().map(Vec::len).sum());
-        Self::merge_runs(runs, |k, a| out.push(self.voxel(k, a)));
+        let whole: Vec<Range<usize>> = runs.iter().map(|r| 0..r.len()).collect();
+        Self::merge_ranges(&runs, &whole, |k, a| out.push(self.voxel(k, a)));
         out
     }
 
     /// [`VoxelGrid::into_voxels`] as separate arrays (centroids in `f32`, mean colours,
     /// viewpoints), for a large map: at the peak, the sorted runs of raw sums (40 bytes
     /// per voxel) and the arrays (27 bytes), the grid's memory handed back as it is read.
+    /// The merge runs in key ranges side by side ([`rayon`]), each into its own slice of
+    /// the arrays: the same arrays on any thread count.
     pub fn into_points(mut self, min_count: u32) -> VoxelPoints {
         let runs = self.take_sorted_runs(min_count);
         let n = runs.iter().map(Vec::len).sum();
+        let parts = Self::merge_parts(&runs, 4 * rayon::current_num_threads());
         let mut out = VoxelPoints {
-            centroids: Vec::with_capacity(n),
-            colors: Vec::with_capacity(n),
-            viewpoints: Vec::with_capacity(n),
+            centroids: vec![[0.0; 3]; n],
+            colors: vec![[0; 3]; n],
+            viewpoints: vec![[0.0; 3]; n],
         };
-        Self::merge_runs(runs, |k, a| {
-            let v = self.voxel(k, a);
-            out.centroids.push(v.centroid.map(|c| c as f32));
-            out.colors.push(v.rgb);
-            out.viewpoints.push(v.viewpoint);
+        // Each part's slices of the three arrays, in key order.
+        let mut slices = Vec::with_capacity(parts.len());
+        let (mut c, mut k, mut v) = (
+            &mut out.centroids[..],
+            &mut out.colors[..],
+            &mut out.viewpoints[..],
+        );
+        for ranges in &parts {
+            let len = ranges.iter().map(ExactSizeIterator::len).sum();
+            let (c0, c1) = std::mem::take(&mut c).split_at_mut(len);
+            let (k0, k1) = std::mem::take(&mut k).split_at_mut(len);
+            let (v0, v1) = std::mem::take(&mut v).split_at_mut(len);
+            slices.push((c0, k0, v0, ranges));
+            (c, k, v) = (c1, k1, v1);
+        }
+        let this = &self;
+        slices.into_par_iter().for_each(|(c, k, v, ranges)| {
+            let mut i = 0;
+            Self::merge_ranges(&runs, ranges, |key, a| {
+                let voxel = this.voxel(key, a);
+                c[i] = voxel.centroid.map(|x| x as f32);
+                k[i] = voxel.rgb;
+                v[i] = voxel.viewpoint;
+                i += 1;
+            });
         });
+        drop(runs);
         release_freed_memory();
         out
     }
@@ -571,23 +620,25 @@ mod tests {
 
     #[test]
     fn points_are_the_voxels_as_arrays_in_key_order() {
-        // 50 k uniform points (xorshift) in 8000 voxels: 6.25 per voxel on average.
+        // 50 k uniform points (xorshift) in 8000 voxels, 6.25 per voxel on average, in
+        // five batches (viewpoints). The second method: every voxel (`voxels`, collected
+        // and sorted), the sparse ones left out.
         let mut state: u64 = 0x2545_F491_4F6C_DD1D;
         let mut next = || crate::mapper::test_rng::next_unit(&mut state);
         let pts: Vec<[f64; 3]> = (0..50_000).map(|_| [next(), next(), next()]).collect();
-        let cols = vec![[10, 20, 30]; pts.len()];
+        let cols: Vec<[u8; 3]> = (0..pts.len()).map(|i| [(i % 251) as u8, 20, 30]).collect();
         let mut g = VoxelGrid::new(0.05);
-        g.insert(&pts, &cols, [1.0, 2.0, 3.0]);
+        for (b, (p, c)) in pts.chunks(10_000).zip(cols.chunks(10_000)).enumerate() {
+            g.insert(p, c, [1.0, 2.0, b as f32]);
+        }
         let min = 6;
-        let voxels = g.clone().into_voxels(min);
-        assert!(voxels.windows(2).all(|w| w[0].key < w[1].key), "sorted");
+        let voxels: Vec<Voxel> = g.voxels().into_iter().filter(|v| v.count >= min).collect();
         assert!(
             voxels.len() > 1000 && voxels.len() < g.len(),
             "{} of {} voxels at min {min}",
             voxels.len(),
             g.len()
         );
-        let points = g.into_points(min);
         let expected = VoxelPoints {
             centroids: voxels
                 .iter()
@@ -596,6 +647,49 @@ mod tests {
             colors: voxels.iter().map(|v| v.rgb).collect(),
             viewpoints: voxels.iter().map(|v| v.viewpoint).collect(),
         };
-        assert_eq!(points, expected);
+        assert_eq!(g.clone().into_voxels(min), voxels);
+        // Any number of threads, so of key ranges merged side by side.
+        for threads in [1, 2, 3, 8] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a thread pool");
+            assert_eq!(pool.install(|| g.clone().into_points(min)), expected);
+        }
+        // The parts tile every run, in key order, for any count: more parts than voxels
+        // included, and an empty grid.
+        let runs = g.clone().take_sorted_runs(min);
+        for parts in [1, 2, 7, 64, 100_000] {
+            let cut = VoxelGrid::merge_parts(&runs, parts);
+            assert!(!cut.is_empty() && cut.len() <= parts);
+            for (r, run) in runs.iter().enumerate() {
+                assert_eq!(cut[0][r].start, 0);
+                assert_eq!(cut[cut.len() - 1][r].end, run.len());
+                for w in cut.windows(2) {
+                    assert_eq!(w[0][r].end, w[1][r].start);
+                }
+            }
+            for w in cut.windows(2) {
+                let last = w[0]
+                    .iter()
+                    .zip(&runs)
+                    .filter_map(|(x, run)| x.clone().last().map(|i| run[i].0))
+                    .max();
+                let first = w[1]
+                    .iter()
+                    .zip(&runs)
+                    .filter_map(|(x, run)| run.get(x.start).filter(|_| !x.is_empty()).map(|e| e.0))
+                    .min();
+                if let (Some(a), Some(b)) = (last, first) {
+                    assert!(a < b, "parts overlap in keys");
+                }
+            }
+        }
+        let empty = VoxelGrid::new(0.05);
+        assert_eq!(empty.clone().into_points(1), VoxelPoints::default());
+        assert_eq!(
+            VoxelGrid::merge_parts(&empty.clone().take_sorted_runs(1), 8).len(),
+            1
+        );
     }
 }
