@@ -233,13 +233,14 @@ impl Bpa<'_> {
             if k == e.s || k == e.t || k == e.o {
                 continue;
             }
-            // The new triangle (t, s, k) shares the edge reversed.
-            let Some((c, nrm)) = ball_center(pt, ps, pk, rho) else {
-                continue;
-            };
-            if !self.normals_agree(&nrm, [e.s, e.t, k]) {
+            // The new triangle (t, s, k) shares the edge reversed. Its normal (as
+            // `ball_center` computes it) is checked first, for a fraction of the cost.
+            if !self.normals_agree(&cross(&sub(ps, pt), &sub(pk, pt)), [e.s, e.t, k]) {
                 continue;
             }
+            let Some((c, _)) = ball_center(pt, ps, pk, rho) else {
+                continue;
+            };
             let u1 = sub(&c, &m);
             let mut angle = dot(&axis, &cross(&u0, &u1)).atan2(dot(&u0, &u1));
             if angle < 0.0 {
@@ -321,32 +322,28 @@ impl Bpa<'_> {
         grid: &PointGrid,
         rho: f64,
         near: &mut Near,
-        scratch: &mut Vec<u32>,
+        scratch: &mut Vec<(u64, u32)>,
     ) -> bool {
         let pv = self.p[v as usize];
         near.clear();
         grid.within(&pv, 2.0 * rho, near);
+        // Each candidate's squared distance, computed once, as its bits: a sum of squares
+        // is never negative nor -0, so the bits order as the distances do (`total_cmp`).
         scratch.clear();
         scratch.extend(
-            near.indices()
-                .iter()
-                .copied()
-                .filter(|&q| q != v && !self.used[q as usize]),
+            near.iter()
+                .filter(|&(q, _)| q != v && !self.used[q as usize])
+                .map(|(q, pq)| (dist2(pq, &pv).to_bits(), q)),
         );
-        let nearer = |a: &u32, b: &u32| {
-            dist2(&self.p[*a as usize], &pv)
-                .total_cmp(&dist2(&self.p[*b as usize], &pv))
-                .then(a.cmp(b))
-        };
         // The SEED_NEIGHBOURS nearest, in order (a total order: ties by index).
         if scratch.len() > SEED_NEIGHBOURS {
-            scratch.select_nth_unstable_by(SEED_NEIGHBOURS, nearer);
+            scratch.select_nth_unstable(SEED_NEIGHBOURS);
             scratch.truncate(SEED_NEIGHBOURS);
         }
-        scratch.sort_unstable_by(nearer);
+        scratch.sort_unstable();
         for i in 0..scratch.len() {
             for j in i + 1..scratch.len() {
-                let (mut a, mut b) = (scratch[i], scratch[j]);
+                let (mut a, mut b) = (scratch[i].1, scratch[j].1);
                 let ab = cross(
                     &sub(&self.p[a as usize], &pv),
                     &sub(&self.p[b as usize], &pv),
@@ -354,14 +351,17 @@ impl Bpa<'_> {
                 if dot(&ab, &self.n[v as usize]) < 0.0 {
                     std::mem::swap(&mut a, &mut b);
                 }
-                let Some((c, nrm)) =
-                    ball_center(&pv, &self.p[a as usize], &self.p[b as usize], rho)
-                else {
+                // The normals are checked first: they reject most pairs (at least 46 M
+                // of `map-row`'s 100 M), and the normal is the one `ball_center` computes
+                // (the same operations), for a fraction of its cost.
+                let (pa, pb) = (&self.p[a as usize], &self.p[b as usize]);
+                if !self.normals_agree(&cross(&sub(pa, &pv), &sub(pb, &pv)), [v, a, b]) {
+                    continue;
+                }
+                let Some((c, _)) = ball_center(&pv, pa, pb, rho) else {
                     continue;
                 };
-                if !self.normals_agree(&nrm, [v, a, b])
-                    || !self.ball_is_empty_near(near, &pv, grid, &c, rho, [v, a, b])
-                {
+                if !self.ball_is_empty_near(near, &pv, grid, &c, rho, [v, a, b]) {
                     continue;
                 }
                 if self.add_triangle([v, a, b], c) {
