@@ -769,11 +769,22 @@ impl Mapper {
         let grvi: Vec<f32> = colors.iter().map(|c| grvi_of(*c)).collect();
         let elevation = elevation(&positions, params.ground_cell_m, params.ground_percentile);
         lap(&mut timing.attributes_s);
-        let normals = normals::estimate_normals(
-            &positions,
-            &viewpoints,
-            params.normal_neighbours,
-            2.0 * params.voxel_m,
+        // The mesh's Poisson-disk sample needs only the positions, and it is one greedy
+        // pass (serial): it runs beside the normals, which take the other threads.
+        let (normals, keep) = rayon::join(
+            || {
+                normals::estimate_normals(
+                    &positions,
+                    &viewpoints,
+                    params.normal_neighbours,
+                    2.0 * params.voxel_m,
+                )
+            },
+            || {
+                params
+                    .mesh
+                    .then(|| poisson::poisson_disk(&positions, params.poisson_radius_m))
+            },
         );
         voxel::release_freed_memory();
         lap(&mut timing.normals_s);
@@ -789,8 +800,8 @@ impl Mapper {
             grvi,
             elevation,
         };
-        let mesh = if params.mesh {
-            let (mesh, samples, boundary) = mesh_cloud(&cloud, &params);
+        let mesh = if let Some(keep) = keep {
+            let (mesh, samples, boundary) = mesh_cloud(&cloud, keep, &params);
             stats.mesh_samples = samples as u64;
             stats.mesh_triangles = mesh.triangles.len() as u64;
             stats.mesh_boundary_edges = boundary as u64;
@@ -863,11 +874,14 @@ pub fn elevation<T: Copy + Into<f64> + Sync>(
         .collect()
 }
 
-/// Poisson-disk subsample, Ball-Pivoting in tiles, vertex colours and normals from the
-/// cloud; unreferenced samples are left out of the mesh. Returns the mesh, the sample
-/// count and the boundary edge count.
-fn mesh_cloud(cloud: &PointCloud, params: &MapperParams) -> (TriangleMesh, usize, usize) {
-    let keep = poisson::poisson_disk(&cloud.positions, params.poisson_radius_m);
+/// Ball-Pivoting in tiles over the Poisson-disk subsample `keep` (indices into the
+/// cloud), vertex colours and normals from the cloud; unreferenced samples are left out
+/// of the mesh. Returns the mesh, the sample count and the boundary edge count.
+fn mesh_cloud(
+    cloud: &PointCloud,
+    keep: Vec<u32>,
+    params: &MapperParams,
+) -> (TriangleMesh, usize, usize) {
     let pts: Vec<[f32; 3]> = keep.iter().map(|&i| cloud.positions[i as usize]).collect();
     let nrm: Vec<[f32; 3]> = keep.iter().map(|&i| cloud.normals[i as usize]).collect();
     let mut triangles =
@@ -917,9 +931,10 @@ pub struct FinishTiming {
     pub points_s: f64,
     /// GRVI and elevation.
     pub attributes_s: f64,
-    /// Normals (k nearest neighbours, oriented to the viewpoints).
+    /// Normals (k nearest neighbours, oriented to the viewpoints), with the mesh's
+    /// Poisson-disk sampling beside them on another thread.
     pub normals_s: f64,
-    /// Poisson-disk sampling and Ball-Pivoting meshing (0 without a mesh).
+    /// Ball-Pivoting meshing (0 without a mesh).
     pub mesh_s: f64,
 }
 
