@@ -37,10 +37,11 @@
 //!    [`MapperParams::normal_neighbours`] nearest neighbours (PCA; a grid search that
 //!    answers as kiddo's k-d tree, [`normals`]), oriented towards the camera centre that
 //!    last saw each voxel.
-//! 5. **Meshing** (section 5): Poisson-disk subsampling ([`poisson`]), Ball-Pivoting with
-//!    a list of radii ([`bpa`]) in square xy tiles of [`MapperParams::mesh_tile_m`] meshed
-//!    in parallel ([`bpa::ball_pivoting_tiled`]), vertex colours from the cloud. The mesh
-//!    can be loaded back as the world the simulator's cameras see (`[world.mesh]`).
+//! 5. **Meshing** (section 5): Poisson-disk subsampling ([`poisson`], beside the normals:
+//!    it needs only the positions), Ball-Pivoting with a list of radii ([`bpa`]) in square
+//!    xy tiles of [`MapperParams::mesh_tile_m`] meshed in parallel
+//!    ([`bpa::ball_pivoting_tiled`]), vertex colours from the cloud. The mesh can be
+//!    loaded back as the world the simulator's cameras see (`[world.mesh]`).
 //! 6. **Export** ([`Map::export`]): `map.ply` (binary: x y z, colour, normals, GRVI,
 //!    elevation), `map_grvi.ply` and `map_elevation.ply` (the same points coloured as the
 //!    paper's Figure 15 b and c), `mesh.ply`, `mesh.obj`, a Gazebo model folder and an
