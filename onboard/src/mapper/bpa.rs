@@ -348,16 +348,20 @@ impl Bpa<'_> {
                     &sub(&self.p[a as usize], &pv),
                     &sub(&self.p[b as usize], &pv),
                 );
-                if dot(&ab, &self.n[v as usize]) < 0.0 {
+                let flip = dot(&ab, &self.n[v as usize]) < 0.0;
+                if flip {
                     std::mem::swap(&mut a, &mut b);
                 }
                 // The normals are checked first: they reject most pairs (at least 46 M
-                // of `map-row`'s 100 M), and the normal is the one `ball_center` computes
-                // (the same operations), for a fraction of its cost.
-                let (pa, pb) = (&self.p[a as usize], &self.p[b as usize]);
-                if !self.normals_agree(&cross(&sub(pa, &pv), &sub(pb, &pv)), [v, a, b]) {
+                // of `map-row`'s 100 M), for a fraction of `ball_center`'s cost. Its
+                // normal is `ab`, or `ab` negated where a and b were swapped (exactly: a
+                // difference of the same two products, the other way round; a zero may
+                // change sign, which no `> 0` test below can tell).
+                let nrm = if flip { ab.map(|x| -x) } else { ab };
+                if !self.normals_agree(&nrm, [v, a, b]) {
                     continue;
                 }
+                let (pa, pb) = (&self.p[a as usize], &self.p[b as usize]);
                 let Some((c, _)) = ball_center(&pv, pa, pb, rho) else {
                     continue;
                 };
