@@ -120,7 +120,20 @@ fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
 fn ball_center(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], rho: f64) -> Option<([f64; 3], [f64; 3])> {
     let ab = sub(b, a);
     let ac = sub(c, a);
-    let nrm = cross(&ab, &ac);
+    ball_center_of(a, &ab, &ac, cross(&ab, &ac), rho)
+}
+
+/// [`ball_center`] from `ab` = b − a, `ac` = c − a and their cross product `nrm`, where
+/// the caller has them already.
+#[inline]
+fn ball_center_of(
+    a: &[f64; 3],
+    ab: &[f64; 3],
+    ac: &[f64; 3],
+    nrm: [f64; 3],
+    rho: f64,
+) -> Option<([f64; 3], [f64; 3])> {
+    let (ab, ac) = (*ab, *ac);
     let l2 = dot(&nrm, &nrm);
     let scale = dot(&ab, &ab) * dot(&ac, &ac);
     if l2.is_nan() || l2 <= 1e-12 * scale || l2 <= 0.0 {
@@ -229,16 +242,19 @@ impl Bpa<'_> {
         let mut best: Option<(f64, u32, [f64; 3])> = None;
         near.clear();
         grid.within(&m, 2.0 * rho, near);
+        let ts = sub(ps, pt);
         for (k, pk) in near.iter() {
             if k == e.s || k == e.t || k == e.o {
                 continue;
             }
-            // The new triangle (t, s, k) shares the edge reversed. Its normal (as
-            // `ball_center` computes it) is checked first, for a fraction of the cost.
-            if !self.normals_agree(&cross(&sub(ps, pt), &sub(pk, pt)), [e.s, e.t, k]) {
+            // The new triangle (t, s, k) shares the edge reversed. Its normal is checked
+            // first, for a fraction of the ball's cost, and the ball is computed from it.
+            let tk = sub(pk, pt);
+            let nrm = cross(&ts, &tk);
+            if !self.normals_agree(&nrm, [e.s, e.t, k]) {
                 continue;
             }
-            let Some((c, _)) = ball_center(pt, ps, pk, rho) else {
+            let Some((c, _)) = ball_center_of(pt, &ts, &tk, nrm, rho) else {
                 continue;
             };
             let u1 = sub(&c, &m);
