@@ -8,10 +8,19 @@
 #![allow(clippy::unwrap_used)]
 
 use vinebench_msgs::{Message, StaticTransforms};
-use vinebench_onboard::slam::{SlamConfig, SlamOutput, VisualSlam};
+use vinebench_onboard::slam::{SlamBaseline, SlamConfig, SlamOutput, VisualSlam, share_front_ends};
 
 fn run(cfg: &SlamConfig, messages: &[Message], tf: &StaticTransforms) -> SlamOutput {
-    let mut slam = VisualSlam::new("slam", cfg.clone(), tf.clone(), None).unwrap();
+    run_as("slam", cfg, messages, tf)
+}
+
+fn run_as(
+    source: &'static str,
+    cfg: &SlamConfig,
+    messages: &[Message],
+    tf: &StaticTransforms,
+) -> SlamOutput {
+    let mut slam = VisualSlam::new(source, cfg.clone(), tf.clone(), None).unwrap();
     for m in messages {
         slam.push(m).unwrap();
     }
@@ -65,5 +74,42 @@ fn the_pipelined_slam_gives_the_results_of_the_serial_one_on_any_thread_count() 
             .unwrap();
         let got = pool.install(|| run(&pipelined, &messages, &tf));
         assert!(fingerprint(&got) == want, "{threads} threads");
+    }
+}
+
+#[test]
+fn slams_sharing_their_stereo_pairs_give_what_each_gives_alone() {
+    // The SLAM and two baselines on the same messages, as a scenario runs them: each
+    // alone, then together with shared pairs (the first extracts, the others copy).
+    let (messages, tf, cfg) = vinebench::bench::slam_bench_stream(7.0).unwrap();
+    let cfg = SlamConfig {
+        baselines: vec![SlamBaseline::NoLoops, SlamBaseline::SingleCamera],
+        ..cfg
+    };
+    let runs = cfg.runs();
+    let alone: Vec<String> = runs
+        .iter()
+        .map(|(source, c)| fingerprint(&run_as(source, c, &messages, &tf)))
+        .collect();
+    let mut slams: Vec<VisualSlam> = runs
+        .iter()
+        .map(|(source, c)| VisualSlam::new(source, c.clone(), tf.clone(), None).unwrap())
+        .collect();
+    share_front_ends(&mut slams);
+    for m in &messages {
+        for s in &mut slams {
+            s.push(m).unwrap();
+        }
+    }
+    let outs: Vec<SlamOutput> = slams.into_iter().map(VisualSlam::finish).collect();
+    let pairs = |o: &SlamOutput| o.pairs.iter().map(|p| p.1).sum::<usize>();
+    // The SLAM extracts every pair; the baseline with the same cameras copies every one,
+    // the single-camera one copies its camera's.
+    assert_eq!(outs[0].shared_pairs, 0);
+    assert!(pairs(&outs[1]) >= 100, "{:?}", outs[1].pairs);
+    assert_eq!(outs[1].shared_pairs, pairs(&outs[1]));
+    assert!(outs[2].shared_pairs > 0 && outs[2].shared_pairs <= pairs(&outs[2]));
+    for (o, want) in outs.iter().zip(&alone) {
+        assert!(fingerprint(o) == *want, "{}", o.source);
     }
 }

@@ -471,7 +471,11 @@ pub fn slam_from_scenario(
             )
             .map_err(|e| sc.field_error("slam", e.to_string()).into())
         })
-        .collect()
+        .collect::<Result<Vec<_>, RunError>>()
+        .map(|mut slams| {
+            vinebench_onboard::slam::share_front_ends(&mut slams);
+            slams
+        })
 }
 
 /// A simulated survey of `world`'s tag boards into `cfg.surveyed_tags` (entries the

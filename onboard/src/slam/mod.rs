@@ -68,7 +68,9 @@ pub use grid::{FeatureGrid, GridConfig};
 pub use image::{GrayImage, ImageError, Pyramid};
 pub use orb::{Descriptor, Features, KeyPoint, OrbConfig, OrbExtractor, hamming};
 pub use stereo::{StereoCamera, StereoConfig, StereoMatcher, StereoMatches};
-pub use system::{SLAM_SOURCE, SlamBaseline, SlamConfig, SlamError, SlamOutput, VisualSlam};
+pub use system::{
+    SLAM_SOURCE, SlamBaseline, SlamConfig, SlamError, SlamOutput, VisualSlam, share_front_ends,
+};
 pub use tracking::{Tracker, TrackingConfig, TrackingLoss, TrackingState};
 
 use thiserror::Error;

@@ -28,7 +28,7 @@ use super::{ConfigError, check};
 use nalgebra::{Isometry3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, PoisonError};
 use vinebench_msgs::{
     CameraInfoMsg, ImageMsg, Message, Nanos, PoseSample, StaticTransforms, Trajectory,
 };
@@ -274,6 +274,9 @@ pub struct SlamOutput {
     pub stats: TrackerStats,
     /// Stereo pairs extracted per camera (name, count).
     pub pairs: Vec<(String, usize)>,
+    /// Of those pairs, how many were copied from another SLAM of the run that had
+    /// extracted the same images ([`share_front_ends`]).
+    pub shared_pairs: usize,
     /// Live landmarks at the end.
     pub landmarks: usize,
     /// Accepted loop closures, in order.
@@ -312,6 +315,124 @@ pub struct VisualSlam {
     body_from_imu: Option<UnitQuaternion<f64>>,
     /// The rig frame waiting to be tracked alongside the next image (with `pipeline`).
     pending: Option<RigFrame>,
+    /// Pairs extracted by the other SLAMs of the run ([`share_front_ends`]).
+    shared: Option<SharedFrontEnd>,
+    /// Pairs copied from `shared`.
+    shared_pairs: usize,
+}
+
+/// Stereo pairs that one SLAM of a run has extracted, kept for the others that read the
+/// same cameras with the same front-end settings (a scenario's baselines run on the very
+/// same messages). A pair whose two images are the same buffers (the same `Arc`, which
+/// the entry holds, so no other image can take its address) with the same size,
+/// encoding and stereo calibration is copied instead of extracted again. Extraction is a
+/// function of the images, the calibration and the settings alone, so the copy is what
+/// the SLAM would have computed, bit for bit. Set up by [`share_front_ends`].
+#[derive(Clone, Debug)]
+struct SharedFrontEnd {
+    /// The latest extracted pair of each camera.
+    pairs: Arc<Mutex<Vec<SharedPair>>>,
+}
+
+/// One extracted pair in a [`SharedFrontEnd`].
+#[derive(Debug)]
+struct SharedPair {
+    camera: String,
+    left: ImageMsg,
+    right: ImageMsg,
+    stereo: super::StereoCamera,
+    frame: StereoFrame,
+}
+
+/// Whether `a` and `b` are the same image: the same pixel buffer, size, encoding and
+/// stamp.
+fn same_image(a: &ImageMsg, b: &ImageMsg) -> bool {
+    Arc::ptr_eq(&a.data, &b.data)
+        && a.data.len() == b.data.len()
+        && (a.stamp, a.width, a.height, a.encoding) == (b.stamp, b.width, b.height, b.encoding)
+}
+
+impl SharedFrontEnd {
+    /// Copies the pair of `camera` extracted from `left` and `right` with `stereo` into
+    /// `out`, if one is kept; `false` if not.
+    fn copy(
+        &self,
+        camera: &str,
+        left: &ImageMsg,
+        right: &ImageMsg,
+        stereo: &super::StereoCamera,
+        out: &mut StereoFrame,
+    ) -> bool {
+        let pairs = self.pairs.lock().unwrap_or_else(PoisonError::into_inner);
+        let Some(p) = pairs.iter().find(|p| {
+            p.camera == camera
+                && p.stereo == *stereo
+                && same_image(&p.left, left)
+                && same_image(&p.right, right)
+        }) else {
+            return false;
+        };
+        out.clone_from(&p.frame);
+        true
+    }
+
+    /// Keeps `frame`, extracted from `left` and `right` of `camera` with `stereo`, in
+    /// place of that camera's previous pair.
+    fn keep(
+        &self,
+        camera: &str,
+        left: &ImageMsg,
+        right: &ImageMsg,
+        stereo: super::StereoCamera,
+        frame: &StereoFrame,
+    ) {
+        let mut pairs = self.pairs.lock().unwrap_or_else(PoisonError::into_inner);
+        let i = match pairs.iter().position(|p| p.camera == camera) {
+            Some(i) => i,
+            None => {
+                pairs.push(SharedPair {
+                    camera: camera.to_string(),
+                    left: left.clone(),
+                    right: right.clone(),
+                    stereo,
+                    frame: StereoFrame::default(),
+                });
+                pairs.len() - 1
+            }
+        };
+        let p = &mut pairs[i];
+        p.left = left.clone();
+        p.right = right.clone();
+        p.stereo = stereo;
+        p.frame.clone_from(frame);
+    }
+}
+
+/// Lets the SLAMs of one run (the SLAM and its baselines, [`SlamConfig::runs`]) that use
+/// the same front-end settings share their stereo pairs: a pair one of them has
+/// extracted is copied by the others that are given the same images (see
+/// `SharedFrontEnd`), which saves the feature extraction and stereo matching of every
+/// SLAM but the first. Their results are the same, bit for bit, as each extracting its
+/// own.
+pub fn share_front_ends(slams: &mut [VisualSlam]) {
+    for i in 0..slams.len() {
+        if slams[i].shared.is_some() {
+            continue;
+        }
+        let features = slams[i].cfg.features.clone();
+        let group: Vec<usize> = (i..slams.len())
+            .filter(|&j| slams[j].shared.is_none() && slams[j].cfg.features == features)
+            .collect();
+        if group.len() < 2 {
+            continue;
+        }
+        let shared = SharedFrontEnd {
+            pairs: Arc::default(),
+        };
+        for j in group {
+            slams[j].shared = Some(shared.clone());
+        }
+    }
 }
 
 /// A rig frame with its inputs fixed: the pairs it uses (moved out of their slots) and
@@ -454,6 +575,8 @@ impl VisualSlam {
             gyro: GyroBuffer::default(),
             body_from_imu: None,
             pending: None,
+            shared: None,
+            shared_pairs: 0,
         })
     }
 
@@ -588,25 +711,46 @@ impl VisualSlam {
             return Ok(());
         }
         let s = &mut self.slots[i];
-        let image_err = |m: &ImageMsg| {
-            let (topic, stamp) = (m.topic.to_string(), m.stamp);
-            move |source| SlamError::Image {
-                topic,
-                stamp,
-                source,
+        // Another SLAM of the run may have extracted these very images already.
+        let mut copied = None;
+        if let (Some(shared), Ok(stereo)) = (&self.shared, stereo_camera(s)) {
+            let mut frame = take_frame(s);
+            if shared.copy(&s.name, &l, &r, &stereo, &mut frame) {
+                copied = Some(frame);
+            } else {
+                s.spare = Some(frame);
+            }
+        }
+        let (tracked, frame) = match copied {
+            Some(frame) => {
+                self.shared_pairs += 1;
+                let (tracked, ()) = track_during(self.tracker.as_mut(), self.pending.take(), || ());
+                (tracked, frame)
+            }
+            None => {
+                let image_err = |m: &ImageMsg| {
+                    let (topic, stamp) = (m.topic.to_string(), m.stamp);
+                    move |source| SlamError::Image {
+                        topic,
+                        stamp,
+                        source,
+                    }
+                };
+                s.gray.0.set_from_msg(&l).map_err(image_err(&l))?;
+                s.gray.1.set_from_msg(&r).map_err(image_err(&r))?;
+                let stereo = stereo_camera(s)?;
+                let mut frame = take_frame(s);
+                let (front_end, gray) = (&mut s.front_end, &s.gray);
+                let (tracked, ()) =
+                    track_during(self.tracker.as_mut(), self.pending.take(), || {
+                        front_end.process(&stereo, &gray.0, &gray.1, &mut frame)
+                    });
+                if let Some(shared) = &self.shared {
+                    shared.keep(&s.name, &l, &r, stereo, &frame);
+                }
+                (tracked, frame)
             }
         };
-        s.gray.0.set_from_msg(&l).map_err(image_err(&l))?;
-        s.gray.1.set_from_msg(&r).map_err(image_err(&r))?;
-        let stereo = stereo_camera(s)?;
-        let mut frame = match s.latest.take() {
-            Some((_, f, false)) => f,
-            _ => s.spare.take().unwrap_or_default(),
-        };
-        let (front_end, gray) = (&mut s.front_end, &s.gray);
-        let (tracked, ()) = track_during(self.tracker.as_mut(), self.pending.take(), || {
-            front_end.process(&stereo, &gray.0, &gray.1, &mut frame)
-        });
         self.tracked(tracked);
         let s = &mut self.slots[i];
         s.latest = Some((l.stamp, frame, false));
@@ -793,6 +937,7 @@ impl VisualSlam {
                 losses: Vec::new(),
                 stats: TrackerStats::default(),
                 pairs,
+                shared_pairs: self.shared_pairs,
                 landmarks: 0,
                 loops: Vec::new(),
                 loop_stats: LoopStats::default(),
@@ -818,6 +963,7 @@ impl VisualSlam {
             losses: tracker.losses().to_vec(),
             stats: tracker.stats().clone(),
             pairs,
+            shared_pairs: self.shared_pairs,
             landmarks: tracker.map().n_live_landmarks(),
             loops: match (&self.tags, &self.bow) {
                 (Some(t), _) => t.closer.loops().to_vec(),
@@ -844,6 +990,15 @@ impl VisualSlam {
 }
 
 /// The rectified stereo geometry of a slot from its right `CameraInfo`.
+/// A frame to extract camera slot `s`'s next pair into: the latest pair's if no rig frame
+/// used it (it is replaced), else the spare one.
+fn take_frame(s: &mut CameraSlot) -> StereoFrame {
+    match s.latest.take() {
+        Some((_, f, false)) => f,
+        _ => s.spare.take().unwrap_or_default(),
+    }
+}
+
 fn stereo_camera(s: &CameraSlot) -> Result<super::StereoCamera, SlamError> {
     let Some(ri) = &s.right_info else {
         return Err(SlamError::CameraInfo {
