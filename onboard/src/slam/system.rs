@@ -353,27 +353,25 @@ fn same_image(a: &ImageMsg, b: &ImageMsg) -> bool {
 }
 
 impl SharedFrontEnd {
-    /// Copies the pair of `camera` extracted from `left` and `right` with `stereo` into
-    /// `out`, if one is kept; `false` if not.
+    /// The pair of slot `s`'s camera extracted from `left` and `right` with `stereo`, if
+    /// one is kept: copied into the slot's next frame ([`take_frame`]).
     fn copy(
         &self,
-        camera: &str,
+        s: &mut CameraSlot,
         left: &ImageMsg,
         right: &ImageMsg,
         stereo: &super::StereoCamera,
-        out: &mut StereoFrame,
-    ) -> bool {
+    ) -> Option<StereoFrame> {
         let pairs = self.pairs.lock().unwrap_or_else(PoisonError::into_inner);
-        let Some(p) = pairs.iter().find(|p| {
-            p.camera == camera
+        let p = pairs.iter().find(|p| {
+            p.camera == s.name
                 && p.stereo == *stereo
                 && same_image(&p.left, left)
                 && same_image(&p.right, right)
-        }) else {
-            return false;
-        };
-        out.clone_from(&p.frame);
-        true
+        })?;
+        let mut frame = take_frame(s);
+        frame.clone_from(&p.frame);
+        Some(frame)
     }
 
     /// Keeps `frame`, extracted from `left` and `right` of `camera` with `stereo`, in
@@ -387,24 +385,21 @@ impl SharedFrontEnd {
         frame: &StereoFrame,
     ) {
         let mut pairs = self.pairs.lock().unwrap_or_else(PoisonError::into_inner);
-        let i = match pairs.iter().position(|p| p.camera == camera) {
-            Some(i) => i,
-            None => {
-                pairs.push(SharedPair {
-                    camera: camera.to_string(),
-                    left: left.clone(),
-                    right: right.clone(),
-                    stereo,
-                    frame: StereoFrame::default(),
-                });
-                pairs.len() - 1
+        match pairs.iter_mut().find(|p| p.camera == camera) {
+            Some(p) => {
+                p.left = left.clone();
+                p.right = right.clone();
+                p.stereo = stereo;
+                p.frame.clone_from(frame);
             }
-        };
-        let p = &mut pairs[i];
-        p.left = left.clone();
-        p.right = right.clone();
-        p.stereo = stereo;
-        p.frame.clone_from(frame);
+            None => pairs.push(SharedPair {
+                camera: camera.to_string(),
+                left: left.clone(),
+                right: right.clone(),
+                stereo,
+                frame: frame.clone(),
+            }),
+        }
     }
 }
 
@@ -712,20 +707,15 @@ impl VisualSlam {
         }
         let s = &mut self.slots[i];
         // Another SLAM of the run may have extracted these very images already.
-        let mut copied = None;
-        if let (Some(shared), Ok(stereo)) = (&self.shared, stereo_camera(s)) {
-            let mut frame = take_frame(s);
-            if shared.copy(&s.name, &l, &r, &stereo, &mut frame) {
-                copied = Some(frame);
-            } else {
-                s.spare = Some(frame);
-            }
-        }
-        let (tracked, frame) = match copied {
+        let copied = match (&self.shared, stereo_camera(s)) {
+            (Some(shared), Ok(stereo)) => shared.copy(s, &l, &r, &stereo),
+            _ => None,
+        };
+        let frame = match copied {
             Some(frame) => {
                 self.shared_pairs += 1;
-                let (tracked, ()) = track_during(self.tracker.as_mut(), self.pending.take(), || ());
-                (tracked, frame)
+                self.track_waiting();
+                frame
             }
             None => {
                 let image_err = |m: &ImageMsg| {
@@ -748,10 +738,10 @@ impl VisualSlam {
                 if let Some(shared) = &self.shared {
                     shared.keep(&s.name, &l, &r, stereo, &frame);
                 }
-                (tracked, frame)
+                self.tracked(tracked);
+                frame
             }
         };
-        self.tracked(tracked);
         let s = &mut self.slots[i];
         s.latest = Some((l.stamp, frame, false));
         s.pairs += 1;
@@ -989,7 +979,6 @@ impl VisualSlam {
     }
 }
 
-/// The rectified stereo geometry of a slot from its right `CameraInfo`.
 /// A frame to extract camera slot `s`'s next pair into: the latest pair's if no rig frame
 /// used it (it is replaced), else the spare one.
 fn take_frame(s: &mut CameraSlot) -> StereoFrame {
@@ -999,6 +988,7 @@ fn take_frame(s: &mut CameraSlot) -> StereoFrame {
     }
 }
 
+/// The rectified stereo geometry of a slot from its right `CameraInfo`.
 fn stereo_camera(s: &CameraSlot) -> Result<super::StereoCamera, SlamError> {
     let Some(ri) = &s.right_info else {
         return Err(SlamError::CameraInfo {
