@@ -706,9 +706,10 @@ impl VisualSlam {
             return Ok(());
         }
         let s = &mut self.slots[i];
+        let stereo = stereo_camera(s);
         // Another SLAM of the run may have extracted these very images already.
-        let copied = match (&self.shared, stereo_camera(s)) {
-            (Some(shared), Ok(stereo)) => shared.copy(s, &l, &r, &stereo),
+        let copied = match (&self.shared, &stereo) {
+            (Some(shared), Ok(stereo)) => shared.copy(s, &l, &r, stereo),
             _ => None,
         };
         let frame = match copied {
@@ -728,7 +729,7 @@ impl VisualSlam {
                 };
                 s.gray.0.set_from_msg(&l).map_err(image_err(&l))?;
                 s.gray.1.set_from_msg(&r).map_err(image_err(&r))?;
-                let stereo = stereo_camera(s)?;
+                let stereo = stereo?;
                 let mut frame = take_frame(s);
                 let (front_end, gray) = (&mut s.front_end, &s.gray);
                 let (tracked, ()) =
