@@ -513,6 +513,79 @@ pub fn depth_model_ms(renderer: &vinebench_sim::render::shade::Renderer, repeats
     1e3 * best / depths.len().max(1) as f64
 }
 
+/// The camera motion the [`camera_motion_ms`] benchmark renders with: 1 m/s forward and
+/// 0.3 rad/s of yaw (a robot turning into the next lane), in the optical frame.
+pub fn bench_camera_motion() -> vinebench_sim::render::blur::CameraMotion {
+    vinebench_sim::render::blur::CameraMotion {
+        linear_mps: Vector3::new(0.0, 0.0, 1.0),
+        angular_radps: Vector3::new(0.0, 0.3, 0.0),
+    }
+}
+
+/// Milliseconds of a rolling-shutter camera's motion passes on one rendered 752×480 frame
+/// (93° HFOV, the rover's ZED 2i-like cameras) at each of [`bench_views`], moving as
+/// [`bench_camera_motion`]: the rolling shutter (18 ms readout, the ZED 2i's) and then the
+/// motion blur (8 ms exposure), all threads; best of `repeats` rounds, mean over the views.
+/// Also a digest of the blurred images (FNV-1a of their bits), which a faster pass must
+/// leave unchanged.
+pub fn camera_motion_ms(
+    renderer: &vinebench_sim::render::shade::Renderer,
+    repeats: usize,
+) -> (f64, u64) {
+    use vinebench_sim::render::blur::{motion_blur, rolling_shutter};
+    use vinebench_sim::render::camera::Intrinsics;
+    use vinebench_sim::render::shade::Frame;
+    let intr = Intrinsics::from_hfov(752, 480, 93.0, Default::default());
+    let rays = intr.pixel_rays();
+    let motion = bench_camera_motion();
+    let mut frame = Frame::new(intr.width, intr.height);
+    let sharp: Vec<Frame> = bench_views()
+        .iter()
+        .map(|pose| {
+            renderer.render(&rays, pose, (1.0 / intr.fx) as f32, 200.0, &mut frame);
+            frame.clone()
+        })
+        .collect();
+    let mut scratch = Vec::new();
+    let mut best = f64::INFINITY;
+    let mut digest = 0xcbf2_9ce4_8422_2325u64;
+    for round in 0..repeats.max(1) {
+        let mut elapsed = 0.0;
+        for s in &sharp {
+            frame.clone_from(s);
+            let t0 = Instant::now();
+            rolling_shutter(
+                &mut frame,
+                &mut scratch,
+                &rays,
+                intr.fx,
+                intr.fy,
+                &motion,
+                0.018,
+            );
+            motion_blur(
+                &mut frame,
+                &mut scratch,
+                &rays,
+                intr.fx,
+                intr.fy,
+                &motion,
+                0.008,
+            );
+            elapsed += t0.elapsed().as_secs_f64();
+            if round == 0 {
+                for x in &frame.linear {
+                    for b in x.to_bits().to_le_bytes() {
+                        digest = (digest ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+                    }
+                }
+            }
+        }
+        best = best.min(elapsed);
+    }
+    (1e3 * best / sharp.len().max(1) as f64, digest)
+}
+
 /// The SLAM feature front-end ([`vinebench_onboard::slam::bench`]) on a rendered, rectified 752×480
 /// stereo pair (93° HFOV, 12 cm baseline: the rover's ZED 2i-like cameras) at the first
 /// of [`bench_views`]: ORB extraction of one image, stereo matching of the pair, and the
@@ -794,6 +867,13 @@ pub fn render_figures(quick: bool, tracer_only: bool) -> Result<Vec<Figure>, Ben
     out.push(Figure {
         name: "render: D435 depth model (occlusion, edges, noise) of one 640x480 frame, all threads",
         value: depth_model_ms(&bvh, repeats),
+        unit: "ms",
+        target: None,
+    });
+    let (motion_ms, _) = camera_motion_ms(&bvh, repeats);
+    out.push(Figure {
+        name: "render: rolling shutter + motion blur of one 752x480 frame (1 m/s, 0.3 rad/s), all threads",
+        value: motion_ms,
         unit: "ms",
         target: None,
     });

@@ -143,7 +143,7 @@ pub struct Camera {
     snr_scratch: SnrScratch,
     /// Rolling-shutter frame readout time, s (0: global shutter).
     readout_s: f64,
-    blur_scratch: Vec<f32>,
+    blur_scratch: Vec<[f32; 4]>,
     depth_scratch: DepthScratch,
     depth_mm: Vec<u16>,
 }
