@@ -120,25 +120,36 @@ fn flow_block(
     }
 }
 
-/// The RGB value of `image` (`w × h` pixels of RGB and an unused fourth value) at
-/// `(px, py)`: bilinear, clamped to the image (what the sensor saw just outside its edge
-/// is unknown; the edge pixel stands in for it). The four values are one SIMD vector,
-/// each lane computed as the scalar formula would (the fourth is ignored by callers).
-#[inline(always)]
-fn bilinear(image: &[[f32; 4]], w: usize, h: usize, px: f64, py: f64) -> f32x4 {
-    let px = px.clamp(0.0, (w - 1) as f64);
-    let py = py.clamp(0.0, (h - 1) as f64);
-    // Non-negative (or NaN, which both casts make 0): the signed cast is the unsigned one.
-    let (x0, y0) = (px as i64 as usize, py as i64 as usize);
-    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-    let fx = f32x4::splat((px - x0 as f64) as f32);
-    let fy = f32x4::splat((py - y0 as f64) as f32);
-    let at = |x: usize, y: usize| f32x4::from(image[y * w + x]);
-    let (a, b) = (at(x0, y0), at(x1, y0));
-    let (c, d) = (at(x0, y1), at(x1, y1));
-    let top = a + (b - a) * fx;
-    let bottom = c + (d - c) * fx;
-    top + (bottom - top) * fy
+/// The sharp image a warp gathers from while it rewrites the frame: `w × h` pixels of
+/// four values (RGB and an unused one, so that a pixel is one SIMD vector).
+struct Sharp<'a> {
+    image: &'a [[f32; 4]],
+    w: usize,
+    h: usize,
+}
+
+impl Sharp<'_> {
+    /// The RGB value at `(px, py)`: bilinear, clamped to the image (what the sensor saw
+    /// just outside its edge is unknown; the edge pixel stands in for it). Each lane is
+    /// computed as the scalar formula would (the fourth is ignored by callers).
+    #[inline(always)]
+    fn at(&self, px: f64, py: f64) -> f32x4 {
+        let (w, h) = (self.w, self.h);
+        let px = px.clamp(0.0, (w - 1) as f64);
+        let py = py.clamp(0.0, (h - 1) as f64);
+        // Non-negative (or NaN, which both casts make 0): the signed cast is the unsigned
+        // one.
+        let (x0, y0) = (px as i64 as usize, py as i64 as usize);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        let fx = f32x4::splat((px - x0 as f64) as f32);
+        let fy = f32x4::splat((py - y0 as f64) as f32);
+        let at = |x: usize, y: usize| f32x4::from(self.image[y * w + x]);
+        let (a, b) = (at(x0, y0), at(x1, y0));
+        let (c, d) = (at(x0, y1), at(x1, y1));
+        let top = a + (b - a) * fx;
+        let bottom = c + (d - c) * fx;
+        top + (bottom - top) * fy
+    }
 }
 
 /// `⌈len⌉ + 1` samples, at most [`MAX_SAMPLES`], for a flow of `len ≥ 0` pixels (NaN: 1);
@@ -165,10 +176,20 @@ fn sample_offsets() -> &'static [f64] {
     &OFFSETS
 }
 
-/// Checks `frame` against its ray table and copies its colour into `scratch` as four
-/// values per pixel (RGB and an unused one), the sharp image a warp gathers from while it
-/// rewrites the frame; returns (width, height).
-fn keep_sharp(frame: &Frame, scratch: &mut Vec<[f32; 4]>, rays: &RayTable) -> (usize, usize) {
+/// Rewrites every pixel of `frame.linear` from a sharp copy of it, rows in parallel (the
+/// result does not depend on the thread count): `pixel(sharp, u, v, flow)` gives pixel
+/// `(u, v)`'s new value, or `None` to keep it, where `flow` is its flow ([`flow_px`])
+/// over `time_of_row(v)`. `scratch` holds the sharp copy (grown on first use, then
+/// reused).
+fn warp(
+    frame: &mut Frame,
+    scratch: &mut Vec<[f32; 4]>,
+    rays: &RayTable,
+    f: (f64, f64),
+    motion: &CameraMotion,
+    time_of_row: impl Fn(usize) -> f64 + Sync,
+    pixel: impl Fn(&Sharp, usize, usize, [f64; 2]) -> Option<f32x4> + Sync,
+) {
     let (w, h) = (frame.width as usize, frame.height as usize);
     assert_eq!(
         (w, h),
@@ -182,7 +203,39 @@ fn keep_sharp(frame: &Frame, scratch: &mut Vec<[f32; 4]>, rays: &RayTable) -> (u
             .chunks_exact(3)
             .map(|c| [c[0], c[1], c[2], 0.0]),
     );
-    (w, h)
+    let sharp = Sharp {
+        image: scratch,
+        w,
+        h,
+    };
+    let depth = &frame.depth_m;
+    frame
+        .linear
+        .par_chunks_mut(3 * w)
+        .enumerate()
+        .for_each(|(v, row)| {
+            let time_s = time_of_row(v);
+            let (mut fu, mut fv) = ([0.0; BLOCK], [0.0; BLOCK]);
+            for u0 in (0..w).step_by(BLOCK) {
+                let n = BLOCK.min(w - u0);
+                flow_block(
+                    rays,
+                    depth,
+                    (v * w + u0, n),
+                    motion,
+                    time_s,
+                    f,
+                    &mut fu,
+                    &mut fv,
+                );
+                for j in 0..n {
+                    let u = u0 + j;
+                    if let Some(c) = pixel(&sharp, u, v, [fu[j], fv[j]]) {
+                        row[3 * u..3 * u + 3].copy_from_slice(&c.to_array()[..3]);
+                    }
+                }
+            }
+        });
 }
 
 /// Blurs `frame.linear` in place for a camera moving with `motion` during an exposure of
@@ -203,44 +256,28 @@ pub fn motion_blur(
     if exposure_s.is_nan() || exposure_s <= 0.0 {
         return;
     }
-    let (w, h) = keep_sharp(frame, scratch, rays);
-    let sharp = &scratch[..];
-    let depth = &frame.depth_m;
     let offsets = sample_offsets();
-    frame
-        .linear
-        .par_chunks_mut(3 * w)
-        .enumerate()
-        .for_each(|(v, row)| {
-            let (mut fu, mut fv) = ([0.0; BLOCK], [0.0; BLOCK]);
-            for u0 in (0..w).step_by(BLOCK) {
-                let n_block = BLOCK.min(w - u0);
-                flow_block(
-                    rays,
-                    depth,
-                    (v * w + u0, n_block),
-                    motion,
-                    exposure_s,
-                    (fx_px, fy_px),
-                    &mut fu,
-                    &mut fv,
-                );
-                for j in 0..n_block {
-                    let (u, fu, fv) = (u0 + j, fu[j], fv[j]);
-                    let len = fu.abs().max(fv.abs());
-                    if len < 0.25 {
-                        continue;
-                    }
-                    let n = sample_count(len);
-                    let mut acc = f32x4::ZERO;
-                    for &s in &offsets[n * (n - 1) / 2..][..n] {
-                        acc += bilinear(sharp, w, h, u as f64 + s * fu, v as f64 + s * fv);
-                    }
-                    let mean = (acc * f32x4::splat(1.0 / n as f32)).to_array();
-                    row[3 * u..3 * u + 3].copy_from_slice(&mean[..3]);
-                }
+    let time_of_row = |_| exposure_s;
+    warp(
+        frame,
+        scratch,
+        rays,
+        (fx_px, fy_px),
+        motion,
+        time_of_row,
+        |sharp, u, v, [fu, fv]| {
+            let len = fu.abs().max(fv.abs());
+            if len < 0.25 {
+                return None;
             }
-        });
+            let n = sample_count(len);
+            let mut acc = f32x4::ZERO;
+            for &s in &offsets[n * (n - 1) / 2..][..n] {
+                acc += sharp.at(u as f64 + s * fu, v as f64 + s * fv);
+            }
+            Some(acc * f32x4::splat(1.0 / n as f32))
+        },
+    );
 }
 
 /// Warps `frame.linear` in place to what a rolling-shutter sensor with a frame readout
@@ -259,40 +296,26 @@ pub fn rolling_shutter(
     if readout_s.is_nan() || readout_s <= 0.0 {
         return;
     }
-    let (w, h) = keep_sharp(frame, scratch, rays);
-    let sharp = &scratch[..];
-    let depth = &frame.depth_m;
-    let centre = (h as f64 - 1.0) / 2.0;
-    frame
-        .linear
-        .par_chunks_mut(3 * w)
-        .enumerate()
-        .for_each(|(v, row)| {
-            let dt = (v as f64 - centre) / h as f64 * readout_s;
-            let (mut fu, mut fv) = ([0.0; BLOCK], [0.0; BLOCK]);
-            for u0 in (0..w).step_by(BLOCK) {
-                // Pixels moved over dt.
-                let n_block = BLOCK.min(w - u0);
-                flow_block(
-                    rays,
-                    depth,
-                    (v * w + u0, n_block),
-                    motion,
-                    dt,
-                    (fx_px, fy_px),
-                    &mut fu,
-                    &mut fv,
-                );
-                for j in 0..n_block {
-                    let (u, fu, fv) = (u0 + j, fu[j], fv[j]);
-                    if fu.abs().max(fv.abs()) < 1e-3 {
-                        continue;
-                    }
-                    let c = bilinear(sharp, w, h, u as f64 - fu, v as f64 - fv).to_array();
-                    row[3 * u..3 * u + 3].copy_from_slice(&c[..3]);
-                }
+    let h = frame.height as f64;
+    let centre = (h - 1.0) / 2.0;
+    // Row v is exposed dt after the stamp; a pixel shows what the stamp's image shows
+    // where the scene point it sees was then (it moved by the flow over dt since).
+    let time_of_row = |v: usize| (v as f64 - centre) / h * readout_s;
+    warp(
+        frame,
+        scratch,
+        rays,
+        (fx_px, fy_px),
+        motion,
+        time_of_row,
+        |sharp, u, v, [fu, fv]| {
+            if fu.abs().max(fv.abs()) < 1e-3 {
+                None
+            } else {
+                Some(sharp.at(u as f64 - fu, v as f64 - fv))
             }
-        });
+        },
+    );
 }
 
 #[cfg(test)]
